@@ -1,0 +1,446 @@
+"""Typed, validated YAML configuration: one frozen dataclass per section, checked once at load.
+
+``load_config(path)`` rejects unknown keys with a did-you-mean suggestion, checks types and
+ranges, resolves mesh paths relative to the config file, and raises one ``ConfigError``
+naming the file and the dotted key. Units are in the key names (``_m`` metres, ``_deg``
+degrees, ``_s`` seconds); inside mvtop everything is SI.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+
+from .errors import ConfigError
+from .geometry import se3
+
+MODALITIES = ("vision", "tactile", "contact")
+
+
+def _rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, doc: str = "") -> dict:
+    """Field metadata: allowed numeric range (inclusive unless ``lo_open``) and a doc string."""
+    return {"lo": lo, "hi": hi, "lo_open": lo_open, "doc": doc}
+
+
+@dataclass(frozen=True)
+class PoseSpec:
+    """A rigid transform given as translation [m] and roll-pitch-yaw [deg] (extrinsic x-y-z)."""
+
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def matrix(self) -> np.ndarray:
+        """The (4, 4) pose."""
+        from scipy.spatial.transform import Rotation
+
+        R = Rotation.from_euler("xyz", self.rpy_deg, degrees=True).as_matrix()
+        return se3.make_pose(R, np.asarray(self.xyz_m, dtype=float))
+
+    @staticmethod
+    def from_matrix(T: np.ndarray) -> "PoseSpec":
+        from scipy.spatial.transform import Rotation
+
+        import warnings
+
+        with warnings.catch_warnings():  # at +-90 deg pitch the angles are not unique; any set is exact
+            warnings.simplefilter("ignore", UserWarning)
+            rpy = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_euler("xyz", degrees=True)
+        return PoseSpec(tuple(float(v) for v in np.asarray(T)[:3, 3]), tuple(float(v) for v in rpy))
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    """The grasped object: its CAD model and insertion tolerance."""
+
+    name: str
+    mesh: Path
+    units: Literal["m", "mm"] = "m"
+    clearance_m: float = field(default=0.0003, metadata=_rng(0.0, 0.01, lo_open=True, doc="per-side clearance in the receptacle"))
+    insertion_depth_m: float = field(default=0.0, metadata=_rng(0.0, 0.2))
+    symmetries: tuple[PoseSpec, ...] = field(
+        default=(), metadata={"doc": "transforms S (besides the identity) with mesh == S applied to mesh"}
+    )
+
+
+@dataclass(frozen=True)
+class EnvironmentMesh:
+    """A fixed or gripper-mounted mesh: it occludes the object and (if ``collide``) bounds it."""
+
+    name: str
+    mesh: Path
+    frame: str = "world"
+    pose: PoseSpec = PoseSpec()
+    units: Literal["m", "mm"] = "m"
+    collide: bool = True
+    occlude: bool = True
+
+
+@dataclass(frozen=True)
+class CameraSensor:
+    """An RGB camera: image and CameraInfo topics and its optical frame."""
+
+    name: str
+    image_topic: str
+    info_topic: str
+    frame: str | None = None
+    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class TactileSensor:
+    """A GelSight-style tactile sensor: images, optional indentation depth, and gel geometry."""
+
+    name: str
+    image_topic: str
+    info_topic: str
+    depth_topic: str | None = None
+    frame: str | None = None
+    gel_distance_m: float = field(default=0.025, metadata=_rng(0.0, 0.2, lo_open=True))
+    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class SensorsConfig:
+    cameras: tuple[CameraSensor, ...] = ()
+    tactile: tuple[TactileSensor, ...] = ()
+
+
+@dataclass(frozen=True)
+class TopicsConfig:
+    """Topic names of the non-image streams."""
+
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+    contact: str | None = "/contact"
+    joint_states: str | None = "/joint_states"
+    wrench: str | None = None
+    ground_truth: str | None = "/ground_truth/object_pose"
+
+
+@dataclass(frozen=True)
+class FramesConfig:
+    world: str = "world"
+    ee: str = "ee"
+
+
+@dataclass(frozen=True)
+class GraspPrior:
+    """Prior over the object in the end effector, ``T_ee_object``: nominal pose and spread."""
+
+    pose: PoseSpec = PoseSpec()
+    distribution: Literal["uniform", "gaussian"] = "uniform"
+    translation_m: float = field(default=0.003, metadata=_rng(0.0, 0.1, doc="half-width (uniform) or sigma (gaussian)"))
+    rotation_deg: float = field(default=10.0, metadata=_rng(0.0, 180.0))
+
+
+@dataclass(frozen=True)
+class BackendConfig:
+    """A masking backend chosen by name, with backend-specific options."""
+
+    backend: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MaskingConfig:
+    camera: BackendConfig = BackendConfig("classical")
+    tactile: BackendConfig = BackendConfig("difference")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Particle filter parameters (Algorithms 3-4, eq. 1)."""
+
+    num_particles: int = field(default=1000, metadata=_rng(1, 1_000_000))
+    temperature: float = field(default=0.003, metadata=_rng(0.0, 10.0, lo_open=True, doc="softmax temperature tau of eq. 1"))
+    sigma_low_translation_m: float = field(default=0.0002, metadata=_rng(0.0, 0.1))
+    sigma_low_rotation_deg: float = field(default=0.2, metadata=_rng(0.0, 180.0))
+    sigma_high_translation_m: float = field(default=0.0005, metadata=_rng(0.0, 0.1))
+    sigma_high_rotation_deg: float = field(default=0.5, metadata=_rng(0.0, 180.0))
+    resampling: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
+    ess_threshold: float = field(default=0.5, metadata=_rng(0.0, 1.0))
+    refine_iterations: int = field(default=8, metadata=_rng(0, 1000))
+    roi_size_px: int = field(default=128, metadata=_rng(16, 1024))
+    seed: int = field(default=0, metadata=_rng(0, 2**63 - 1))
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """Contact likelihood (eq. 8-9): margin tau_c and softness sigma_d."""
+
+    margin_m: float = field(default=0.0, metadata=_rng(-0.01, 0.01))
+    softness_m: float = field(default=0.0002, metadata=_rng(0.0, 0.01, lo_open=True))
+    sdf_resolution_m: float = field(default=0.00025, metadata=_rng(0.0, 0.01, lo_open=True))
+
+
+@dataclass(frozen=True)
+class Config:
+    """A whole mvtop configuration. ``source`` is the file it was loaded from."""
+
+    object: ObjectConfig
+    sensors: SensorsConfig
+    environment: tuple[EnvironmentMesh, ...] = ()
+    topics: TopicsConfig = TopicsConfig()
+    frames: FramesConfig = FramesConfig()
+    grasp_prior: GraspPrior = GraspPrior()
+    masking: MaskingConfig = MaskingConfig()
+    filter: FilterConfig = FilterConfig()
+    contact: ContactConfig = ContactConfig()
+    modalities: tuple[Literal["vision", "tactile", "contact"], ...] = MODALITIES
+    sync_tolerance_s: float = field(default=0.02, metadata=_rng(0.0, 10.0))
+    source: Path | None = field(default=None, metadata={"internal": True})
+
+    def required_topics(self) -> dict[str, str]:
+        """Topics this config reads, mapped to the ROS 2 type each must have."""
+        req = {self.topics.tf: "tf2_msgs/msg/TFMessage", self.topics.tf_static: "tf2_msgs/msg/TFMessage"}
+        for cam in self.sensors.cameras:
+            req[cam.image_topic] = _image_type(cam.image_topic)
+            req[cam.info_topic] = "sensor_msgs/msg/CameraInfo"
+        for tac in self.sensors.tactile:
+            req[tac.image_topic] = _image_type(tac.image_topic)
+            req[tac.info_topic] = "sensor_msgs/msg/CameraInfo"
+            if tac.depth_topic:
+                req[tac.depth_topic] = "sensor_msgs/msg/Image"
+        if self.topics.contact and "contact" in self.modalities:
+            req[self.topics.contact] = "std_msgs/msg/Bool"
+        return req
+
+    def required_frames(self) -> list[str]:
+        """TF frames this config needs (sensor frames named explicitly, world, ee, mesh frames)."""
+        frames = [self.frames.world, self.frames.ee]
+        frames += [s.frame for s in (*self.sensors.cameras, *self.sensors.tactile) if s.frame]
+        frames += [e.frame for e in self.environment]
+        return list(dict.fromkeys(frames))
+
+
+def _image_type(topic: str) -> str:
+    return "sensor_msgs/msg/CompressedImage" if topic.rstrip("/").endswith("compressed") else "sensor_msgs/msg/Image"
+
+
+# ---------------------------------------------------------------------------------------------
+# Generic validation over the dataclasses above.
+
+class _Invalid(Exception):
+    def __init__(self, key: str, message: str):
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if tp is type(None):
+        return "null"
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_type_name(args[0])}"
+        return f"a list of {len(args)} numbers" if all(a is float for a in args) else f"a list of {len(args)} items"
+    if origin is dict:
+        return "a mapping"
+    if dataclasses.is_dataclass(tp):
+        return "a mapping"
+    return {float: "a number", int: "an integer", str: "a string", bool: "true or false", Path: "a file path"}.get(tp, str(tp))
+
+
+def _convert(value: Any, tp: Any, key: str, base: Path) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _convert(value, a, key, base)
+            except _Invalid as err:
+                errors.append(err)
+        if len(errors) == 1:
+            raise errors[0]
+        raise _Invalid(key, f"expected {_type_name(tp)}, got {value!r}")
+    if origin is Literal:
+        allowed = typing.get_args(tp)
+        if value not in allowed:
+            hint = difflib.get_close_matches(str(value), [str(a) for a in allowed], n=1)
+            extra = f" (did you mean {hint[0]!r}?)" if hint else ""
+            raise _Invalid(key, f"expected {_type_name(tp)}, got {value!r}{extra}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise _Invalid(key, f"expected {_type_name(tp)}, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{key}[{i}]", base) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise _Invalid(key, f"expected {_type_name(tp)}, got {len(value)} items")
+        return tuple(_convert(v, a, f"{key}[{i}]", base) for i, (v, a) in enumerate(zip(value, args)))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise _Invalid(key, f"expected a mapping, got {value!r}")
+        return dict(value)
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, key, base)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise _Invalid(key, f"expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Invalid(key, f"expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _Invalid(key, f"expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise _Invalid(key, f"expected a finite number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str) or not value:
+            raise _Invalid(key, f"expected a non-empty string, got {value!r}")
+        return value
+    if tp is Path:
+        if not isinstance(value, str) or not value:
+            raise _Invalid(key, f"expected a file path, got {value!r}")
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else (base / p)
+    if tp is Any:
+        return value
+    raise TypeError(f"unsupported config type {tp!r} at {key}")
+
+
+def _check_range(value: Any, meta: dict, key: str) -> None:
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if value is None or (lo is None and hi is None):
+        return
+    if lo is not None and (value < lo or (meta.get("lo_open") and value == lo)):
+        op = ">" if meta.get("lo_open") else ">="
+        raise _Invalid(key, f"expected a value {op} {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise _Invalid(key, f"expected a value <= {hi}, got {value!r}")
+
+
+def _build(cls: type, data: Any, prefix: str, base: Path) -> Any:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise _Invalid(prefix or "(top level)", f"expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    for k in data:
+        if k not in fields:
+            hint = difflib.get_close_matches(str(k), list(fields), n=1)
+            extra = f" (did you mean {hint[0]!r}?)" if hint else f" (expected one of: {', '.join(fields)})"
+            raise _Invalid(_join(prefix, str(k)), f"unknown key{extra}")
+    kwargs = {}
+    for name, f in fields.items():
+        key = _join(prefix, name)
+        if name in data:
+            value = _convert(data[name], hints[name], key, base)
+            _check_range(value, f.metadata, key)
+            kwargs[name] = value
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise _Invalid(key, "missing required key")
+    return cls(**kwargs)
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def _check_semantics(cfg: Config) -> None:
+    """Cross-field checks that the types alone cannot express."""
+    names = [s.name for s in (*cfg.sensors.cameras, *cfg.sensors.tactile)]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise _Invalid("sensors", f"sensor names must be unique, {dup[0]!r} is used twice")
+    if not names:
+        raise _Invalid("sensors", "expected at least one camera or tactile sensor")
+    if len(set(cfg.modalities)) != len(cfg.modalities):
+        raise _Invalid("modalities", "a modality is listed twice")
+    if not cfg.modalities:
+        raise _Invalid("modalities", f"expected at least one of {', '.join(MODALITIES)}")
+    meshes = [("object.mesh", cfg.object.mesh)] + [
+        (f"environment[{i}].mesh", e.mesh) for i, e in enumerate(cfg.environment)
+    ]
+    for key, path in meshes:
+        if not path.is_file():
+            raise _Invalid(key, f"mesh file not found: {path}")
+    f = cfg.filter
+    if f.sigma_high_translation_m < f.sigma_low_translation_m:
+        raise _Invalid("filter.sigma_high_translation_m", "expected a value >= filter.sigma_low_translation_m")
+
+
+def parse_config(data: Any, source: Path | str = "<config>", base_dir: Path | None = None) -> Config:
+    """Validate already-parsed YAML ``data``; relative paths resolve against ``base_dir``."""
+    source = Path(source)
+    base = base_dir if base_dir is not None else source.parent
+    try:
+        cfg = _build(Config, data, "", base)
+        _check_semantics(cfg)
+    except _Invalid as err:
+        raise ConfigError(f"{source}: {err.key}: {err.message}") from None
+    return dataclasses.replace(cfg, source=source)
+
+
+def load_config(path: Path | str) -> Config:
+    """Load and validate a YAML config file; raises ``ConfigError`` naming file and dotted key."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: cannot read config file ({err})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ConfigError(f"{path}: invalid YAML{where}: {problem}") from None
+    return parse_config(data, path, path.resolve().parent)
+
+
+def config_to_dict(cfg: Config, relative_to: Path | None = None) -> dict:
+    """The resolved config as plain YAML-ready data (paths absolute, or relative to ``relative_to``)."""
+
+    def conv(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v) if not f.metadata.get("internal")}
+        if isinstance(v, tuple):
+            return [conv(x) for x in v]
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, Path):
+            p = v.resolve()
+            if relative_to is not None:
+                try:
+                    import os
+
+                    return os.path.relpath(p, relative_to.resolve())
+                except ValueError:
+                    pass
+            return str(p)
+        return v
+
+    return conv(cfg)
+
+
+def dump_config(cfg: Config, relative_to: Path | None = None) -> str:
+    """YAML text of the resolved config (every default filled in)."""
+    return yaml.safe_dump(config_to_dict(cfg, relative_to), sort_keys=False)

@@ -1,0 +1,1 @@
+"""Signed distance between object and environment, and the contact likelihood (eq. 8-9)."""

@@ -1,0 +1,210 @@
+"""ROS 2 message definitions (``ros2msg`` schema texts) for every type mvtop reads or writes.
+
+rosbag2 stores a type's schema as its own ``.msg`` text followed by the text of every
+type it depends on, each once, depth first in field order, each introduced by a line of
+80 ``=`` and a ``MSG: pkg/Name`` line. ``mcap_ros2`` parses exactly that layout, so
+``definition(type_name)`` builds it from the field lists below.
+
+The field lists follow the ROS 2 interface definitions (common_interfaces,
+rcl_interfaces); the comments are ours.
+"""
+
+from __future__ import annotations
+
+import re
+
+# One entry per message type: its own fields only (dependencies are appended by
+# ``definition``). Names are the full ``pkg/msg/Name`` form rosbag2 uses for schemas.
+_OWN_TEXT: dict[str, str] = {
+    "builtin_interfaces/msg/Time": """\
+# Time since the epoch: sec [s] plus nanosec [ns] (0 <= nanosec < 1e9).
+int32 sec
+uint32 nanosec
+""",
+    "std_msgs/msg/Header": """\
+# When the data was acquired, and the frame it is expressed in.
+builtin_interfaces/Time stamp
+string frame_id
+""",
+    "std_msgs/msg/Bool": """\
+bool data
+""",
+    "geometry_msgs/msg/Vector3": """\
+float64 x
+float64 y
+float64 z
+""",
+    "geometry_msgs/msg/Point": """\
+float64 x
+float64 y
+float64 z
+""",
+    "geometry_msgs/msg/Quaternion": """\
+# Unit quaternion (x, y, z, w); the default is the identity rotation.
+float64 x 0
+float64 y 0
+float64 z 0
+float64 w 1
+""",
+    "geometry_msgs/msg/Pose": """\
+# Position [m] and orientation of a frame.
+Point position
+Quaternion orientation
+""",
+    "geometry_msgs/msg/PoseStamped": """\
+std_msgs/Header header
+Pose pose
+""",
+    "geometry_msgs/msg/PoseArray": """\
+# Several poses, all expressed in header.frame_id.
+std_msgs/Header header
+Pose[] poses
+""",
+    "geometry_msgs/msg/Transform": """\
+# Translation [m] and rotation of child_frame_id in the parent frame.
+Vector3 translation
+Quaternion rotation
+""",
+    "geometry_msgs/msg/TransformStamped": """\
+# header.frame_id is the parent frame; child_frame_id the frame being placed.
+std_msgs/Header header
+string child_frame_id
+Transform transform
+""",
+    "geometry_msgs/msg/Wrench": """\
+# Force [N] and torque [N m].
+Vector3 force
+Vector3 torque
+""",
+    "geometry_msgs/msg/WrenchStamped": """\
+std_msgs/Header header
+Wrench wrench
+""",
+    "tf2_msgs/msg/TFMessage": """\
+geometry_msgs/TransformStamped[] transforms
+""",
+    "sensor_msgs/msg/Image": """\
+# Uncompressed image; header.frame_id is the camera's optical frame.
+std_msgs/Header header
+uint32 height
+uint32 width
+string encoding
+uint8 is_bigendian
+uint32 step
+uint8[] data
+""",
+    "sensor_msgs/msg/CompressedImage": """\
+# Compressed image; format names the codec (e.g. png, jpeg).
+std_msgs/Header header
+string format
+uint8[] data
+""",
+    "sensor_msgs/msg/RegionOfInterest": """\
+uint32 x_offset
+uint32 y_offset
+uint32 height
+uint32 width
+bool do_rectify
+""",
+    "sensor_msgs/msg/CameraInfo": """\
+# Calibration of a pinhole camera: intrinsics k [px], distortion d, rectification r,
+# projection p.
+std_msgs/Header header
+uint32 height
+uint32 width
+string distortion_model
+float64[] d
+float64[9] k
+float64[9] r
+float64[12] p
+uint32 binning_x
+uint32 binning_y
+RegionOfInterest roi
+""",
+    "sensor_msgs/msg/JointState": """\
+# Joint names with position [m or rad], velocity and effort; arrays may be empty.
+std_msgs/Header header
+string[] name
+float64[] position
+float64[] velocity
+float64[] effort
+""",
+}
+
+MESSAGE_TYPES: tuple[str, ...] = tuple(sorted(_OWN_TEXT))
+"""Every type whose definition this module provides, as ``pkg/msg/Name``."""
+
+_PRIMITIVES = frozenset(
+    "bool byte char float32 float64 int8 uint8 int16 uint16 int32 uint32 int64 uint64 string wstring".split()
+)
+# The separator rosbag2 (and ROS 1 before it) puts between concatenated definitions.
+_SEPARATOR = "=" * 80
+
+
+def normalize_type(type_name: str) -> str:
+    """``pkg/Name`` or ``pkg/msg/Name`` -> ``pkg/msg/Name``."""
+    parts = type_name.strip().split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return type_name.strip()
+
+
+def _short(type_name: str) -> str:
+    pkg, _, name = normalize_type(type_name).split("/")
+    return f"{pkg}/{name}"
+
+
+def _field_types(type_name: str) -> list[str]:
+    """The non-primitive field types of ``type_name`` in field order, as ``pkg/msg/Name``."""
+    pkg = type_name.split("/")[0]
+    out = []
+    for line in _OWN_TEXT[type_name].splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        base = re.sub(r"\[.*\]$", "", line.split()[0])
+        base = re.sub(r"<=\d+$", "", base)
+        if base in _PRIMITIVES:
+            continue
+        out.append(normalize_type(base if "/" in base else f"{pkg}/{base}"))
+    return out
+
+
+def dependencies(type_name: str) -> list[str]:
+    """All types ``type_name`` depends on, each once, depth first in field order."""
+    seen: list[str] = []
+
+    def visit(name: str) -> None:
+        for dep in _field_types(name):
+            if dep not in seen:
+                seen.append(dep)
+                visit(dep)
+
+    visit(normalize_type(type_name))
+    return seen
+
+
+def definition(type_name: str) -> str:
+    """The full ``ros2msg`` schema text of ``type_name`` as rosbag2 stores it.
+
+    Raises KeyError for a type this module does not define (a programming error).
+    """
+    name = normalize_type(type_name)
+    if name not in _OWN_TEXT:
+        raise KeyError(f"no ROS 2 definition for {type_name!r}; known: {', '.join(MESSAGE_TYPES)}")
+    text = _OWN_TEXT[name]
+    for dep in dependencies(name):
+        text += f"\n{_SEPARATOR}\nMSG: {_short(dep)}\n{_OWN_TEXT[dep]}"
+    return text
+
+
+# Shorthand constants for the types mvtop's topic layout uses.
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+BOOL = "std_msgs/msg/Bool"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_ARRAY = "geometry_msgs/msg/PoseArray"

@@ -1,0 +1,1 @@
+"""Segmentation backends that turn camera and tactile images into object masks."""

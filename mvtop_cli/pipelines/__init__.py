@@ -1,0 +1,1 @@
+"""Pipelines that wire io to the core: estimate, evaluate, render-masks, simulate."""

@@ -1,0 +1,411 @@
+"""``mvtop estimate``: run the M-VTOP particle filter over a log and write the pose track.
+
+Per frame (paper section IV): observed masks from the masking backends (Algorithm 1-2 for
+cameras, promptable once converged; depth or difference for tactile sensors), then the
+particle filter (Algorithm 3): motion model (Algorithm 4), weights from the visuo-tactile
+score (eq. 1-2) times the contact likelihood (eq. 8-9), tempered refinement within the frame,
+resampling, and the weighted-mean estimate.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..config import Config, dump_config
+from ..contact.likelihood import log_contact_likelihood
+from ..errors import EstimationError
+from ..filter.motion import MotionModel, init_from_prior, init_uniform_box
+from ..filter.particles import ParticleSet, ess_from_log_weights
+from ..filter.resampling import resample
+from ..filter.search import cross_entropy_search
+from ..filter.pf import ParticleFilter
+from ..filter.scoring import visuo_tactile_log_score
+from ..geometry import se3
+from ..io.atomic import atomic_output
+from ..io.frames import LogTopics, SensorTopics, FrameReader
+from ..io.mcap_reader import McapLog
+from ..io.mcap_writer import LogWriter
+from ..masking.classical import ClassicalCameraBackend
+from ..masking.belief import belief_probability, grabcut_from_belief
+from ..masking.selection import select_masks
+from ..records import Frame, SensorImage
+from ..render.roi import Roi, roi_for_particles
+from .scene_model import OBJECT_ID, SceneModel
+
+TACTILE_DEPTH_THRESHOLD_M = 2e-5  # indentation below this is the undeformed gel
+_CANDIDATES = 96  # candidate poses for Algorithm 1 (mask selection)
+_CONVERGED_TRANSLATION_M = 5e-4  # belief spread below which cameras switch to prompt mode
+_CONVERGED_ROTATION_RAD = np.radians(1.5)
+_PARTICLES_IN_TRACK = 200
+_INIT_FACTOR = 8  # prior samples per particle in the first frame's coarse search
+_FIRST_FRAME_ITERATION_FACTOR = 3  # particles written per frame to track.mcap
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """Command-line overrides of the config."""
+
+    modalities: tuple[str, ...] | None = None
+    num_particles: int | None = None
+    seed: int | None = None
+    max_frames: int | None = None
+
+
+@dataclass
+class FrameEstimate:
+    """The filter's output for one frame."""
+
+    index: int
+    stamp_ns: int
+    T_ee_object: np.ndarray
+    T_world_object: np.ndarray
+    covariance: np.ndarray  # (6, 6): x, y, z [m], rx, ry, rz [rad] about the mean, ee axes
+    ess: float
+    contact: bool | None
+    sensors: tuple[str, ...]
+    flags: tuple[str, ...]
+    mask_mode: str
+    particles_world: np.ndarray = field(repr=False)
+    T_world_object_gt: np.ndarray | None = None
+
+
+def sensor_topics(cfg: Config) -> list[SensorTopics]:
+    """The reader's view of the config's sensors (honouring the enabled modalities)."""
+    out = []
+    if "vision" in cfg.modalities:
+        out += [SensorTopics(c.name, "camera", c.image_topic, c.info_topic, None, c.frame) for c in cfg.sensors.cameras]
+    if "tactile" in cfg.modalities:
+        out += [
+            SensorTopics(t.name, "tactile", t.image_topic, t.info_topic, t.depth_topic, t.frame)
+            for t in cfg.sensors.tactile
+        ]
+    return out
+
+
+def log_topics(cfg: Config) -> LogTopics:
+    t = cfg.topics
+    return LogTopics(
+        tf=t.tf, tf_static=t.tf_static, contact=t.contact if "contact" in cfg.modalities else None,
+        joint_states=t.joint_states, ground_truth=t.ground_truth, world_frame=cfg.frames.world,
+        ee_frame=cfg.frames.ee, sync_tolerance_ns=int(round(cfg.sync_tolerance_s * 1e9)),
+    )
+
+
+class Estimator:
+    """The M-VTOP filter over a stream of frames (no io: frames in, estimates out)."""
+
+    def __init__(self, cfg: Config, scene: SceneModel, frame_pose: Callable[[str, int], np.ndarray]):
+        self.cfg = cfg
+        self.scene = scene
+        self.frame_pose = frame_pose
+        f = cfg.filter
+        self.rng = np.random.default_rng(f.seed)
+        self.motion = MotionModel(
+            f.sigma_low_translation_m, np.radians(f.sigma_low_rotation_deg),
+            f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg),
+        )
+        self.pf = ParticleFilter(self.motion, f.resampling, f.ess_threshold, self.rng, refine_iterations=f.refine_iterations)
+        self.camera_backend = ClassicalCameraBackend(**cfg.masking.camera.options)
+        self.particles: ParticleSet | None = None
+        self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
+        self.camera_weights = {c.name: c.weight for c in cfg.sensors.cameras}
+        self.use_contact = "contact" in cfg.modalities
+
+    def _init_particles(self) -> ParticleSet:
+        g = self.cfg.grasp_prior
+        n = self.cfg.filter.num_particles
+        T_nom = g.pose.matrix()
+        if g.distribution == "uniform":
+            return init_uniform_box(T_nom, g.translation_m, np.radians(g.rotation_deg), n, self.rng)
+        return init_from_prior(T_nom, g.translation_m, np.radians(g.rotation_deg), n, self.rng)
+
+    def _initial_search(self, log_likelihood) -> ParticleSet:
+        """Coarse search of the grasp prior on the first frame (Algorithm 1's pose
+        candidates): draw ``_INIT_FACTOR`` times more prior samples than particles, weight them
+        by the likelihood tempered to keep an effective sample size of N, and resample N. The
+        frame's refinement then starts from the basin of the likelihood instead of from the
+        whole prior, which a few hundred particles cannot cover at sub-millimetre scale."""
+        n = self.cfg.filter.num_particles
+        g = self.cfg.grasp_prior
+        T_nom = g.pose.matrix()
+        if g.distribution == "uniform":
+            big = init_uniform_box(T_nom, g.translation_m, np.radians(g.rotation_deg), n * _INIT_FACTOR, self.rng)
+        else:
+            big = init_from_prior(T_nom, g.translation_m, np.radians(g.rotation_deg), n * _INIT_FACTOR, self.rng)
+        poses, ll = cross_entropy_search(big.poses, log_likelihood, self.rng)
+        if not np.isfinite(ll).any():
+            return self._init_particles()
+        lo, hi = 0.0, 1.0
+        for _ in range(30):  # largest tempering exponent that keeps ESS >= n
+            mid = 0.5 * (lo + hi)
+            if ess_from_log_weights(mid * ll) >= n:
+                lo = mid
+            else:
+                hi = mid
+        weighted = ParticleSet(poses, np.where(np.isfinite(ll), lo * ll, -np.inf))
+        return resample(weighted, self.cfg.filter.resampling, self.rng, n_out=n)
+
+    # --- observed masks ------------------------------------------------------------------
+
+    def _tactile_mask(self, img: SensorImage) -> np.ndarray:
+        if img.depth is not None:
+            return np.asarray(img.depth) > TACTILE_DEPTH_THRESHOLD_M
+        raise EstimationError(
+            f"tactile sensor {img.sensor!r} has no depth topic; set sensors.tactile[].depth_topic"
+        )
+
+    def _camera_masks(self, frame: Frame, rois: dict[str, Roi], occluders: dict, converged: bool) -> tuple[dict, str]:
+        """Observed camera masks in each camera's ROI: Algorithm 1-2 over the classical
+        proposals plus the belief-prompted GrabCut proposal, or prompted at the estimate once
+        the belief has converged (the paper's promptable mode)."""
+        ps = self.particles
+        cams = frame.cameras
+        T_world_obj = frame.T_world_ee @ ps.poses
+        if converged:
+            est = frame.T_world_ee @ ps.mean()
+            out = {}
+            for name, img in cams.items():
+                T = se3.invert(img.T_world_sensor) @ est
+                full = Roi.full(img.camera)
+                prompt = self.scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, full, occluders[name])[0]
+                out[name] = rois[name].crop(self.camera_backend.prompt(img.image, prompt)) if prompt.any() else None
+            return out, "prompt"
+        w = ps.weights()
+        idx = np.argsort(-w, kind="stable")[:_CANDIDATES]
+        cand = T_world_obj[idx]
+        proposals, rendered = {}, {}
+        for name, img in cams.items():
+            roi = rois[name]
+            T = se3.invert(img.T_world_sensor) @ cand
+            rendered[name] = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders[name])
+            box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
+            props = [roi.crop(p) for p in self.camera_backend.proposals(img.image, box)]
+            prob = belief_probability(rendered[name], w[idx])
+            belief = grabcut_from_belief(roi_image(img.image, roi), prob, seed=self.cfg.filter.seed)
+            proposals[name] = ([belief] if belief is not None else []) + props
+        sel = select_masks(proposals, rendered, {n: 1.0 for n in cams})
+        return dict(sel.masks), "proposals"
+
+    # --- one frame -------------------------------------------------------------------------
+
+    def step(self, frame: Frame) -> FrameEstimate:
+        first = self.particles is None
+        if first:
+            self.particles = self._init_particles()
+        ps = self.particles
+        contact = frame.contact if self.use_contact else None
+        f = self.cfg.filter
+        T_world_ee = frame.T_world_ee
+        spread = ps.spread()
+        converged = (not first) and spread.translation_rms_m < _CONVERGED_TRANSLATION_M and spread.rotation_rms_rad < _CONVERGED_ROTATION_RAD
+
+        # ROIs and occluders from the predicted belief (fixed for the frame).
+        occluders, rois, observed, cams = {}, {}, {}, {}
+        T_world_obj = T_world_ee @ ps.poses
+        for name, img in {**frame.cameras, **frame.tactile}.items():
+            tactile = name in frame.tactile
+            T = se3.invert(img.T_world_sensor) @ T_world_obj
+            mode = "tactile" if tactile else "silhouette"
+            gel = self.tactile_cfg[name].gel_distance_m if tactile else None
+            rois[name] = roi_for_particles(self.scene.renderer.mesh(OBJECT_ID), T, img.camera, mode, gel, max_side=f.roi_size_px)
+            occluders[name] = [] if tactile else self.scene.occluders(img.T_world_sensor, lambda fr: self.frame_pose(fr, img.stamp_ns))
+        crops, outside = {}, {}
+        for name, img in frame.tactile.items():
+            full = self._tactile_mask(img)
+            crops[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
+        mask_mode = "none"
+        if frame.cameras:
+            cam_masks, mask_mode = self._camera_masks(frame, rois, occluders, converged)
+            for name, m in cam_masks.items():
+                if m is not None:
+                    crops[name], outside[name] = m, 0.0
+        self.last_masks = {n: (rois[n], crops[n]) for n in crops}
+
+        tac_names = [n for n in frame.tactile if n in crops]
+        cam_names = [n for n in frame.cameras if n in crops]
+        gamma = np.array([self.tactile_cfg[n].weight or 1.0 / max(1, len(tac_names)) for n in tac_names])
+        nu = np.array([self.camera_weights[n] or 1.0 / max(1, len(cam_names)) for n in cam_names])
+
+        def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
+            T_w = T_world_ee @ T_ee_obj
+            iou_t = np.empty((len(T_ee_obj), len(tac_names)))
+            iou_v = np.empty((len(T_ee_obj), len(cam_names)))
+            for j, n in enumerate(tac_names):
+                img = frame.tactile[n]
+                T = se3.invert(img.T_world_sensor) @ T_w
+                iou_t[:, j] = self.scene.renderer.score_masks(
+                    OBJECT_ID, T, img.camera, rois[n], crops[n], mode="tactile",
+                    gel_distance_m=self.tactile_cfg[n].gel_distance_m,
+                    penetration_threshold_m=TACTILE_DEPTH_THRESHOLD_M, observed_outside=outside[n],
+                )
+            for j, n in enumerate(cam_names):
+                img = frame.cameras[n]
+                T = se3.invert(img.T_world_sensor) @ T_w
+                iou_v[:, j] = self.scene.renderer.score_masks(
+                    OBJECT_ID, T, img.camera, rois[n], crops[n], occluders[n], observed_outside=outside[n]
+                )
+            score = visuo_tactile_log_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None, f.temperature)
+            if contact and self.scene.has_contact_model:
+                phi = self.scene.phi(T_w)
+                score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
+            return score
+
+        if not tac_names and not cam_names and not contact:
+            result = self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
+        else:
+            predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
+            iterations = f.refine_iterations * (_FIRST_FRAME_ITERATION_FACTOR if first else 1)
+            if iterations > 0:
+                result = self.pf.refine(predicted, log_likelihood, iterations, self.pf.refine_shrink)
+            else:
+                result = self.pf.update(predicted, log_likelihood)
+        self.particles = result.particles
+        est = result.estimate
+        keep = self.rng.choice(len(result.particles.poses), size=min(_PARTICLES_IN_TRACK, len(result.particles.poses)), replace=False)
+        keep.sort()
+        return FrameEstimate(
+            index=frame.index, stamp_ns=frame.stamp_ns, T_ee_object=est, T_world_object=T_world_ee @ est,
+            covariance=result.spread.covariance, ess=float(result.ess), contact=frame.contact,
+            sensors=tuple(tac_names + cam_names), flags=tuple(result.flags), mask_mode=mask_mode,
+            particles_world=T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
+        )
+
+
+def roi_image(image: np.ndarray, roi: Roi) -> np.ndarray:
+    """The ROI window of an (H, W, 3) uint8 image at ROI resolution (area-averaged, zero
+    outside the image)."""
+    import cv2
+
+    H, W = image.shape[:2]
+    win = np.zeros((roi.height, roi.width, 3), np.uint8)
+    ys, xs = max(roi.y0, 0), max(roi.x0, 0)
+    ye, xe = min(roi.y0 + roi.height, H), min(roi.x0 + roi.width, W)
+    if ye > ys and xe > xs:
+        win[ys - roi.y0 : ye - roi.y0, xs - roi.x0 : xe - roi.x0] = image[ys:ye, xs:xe]
+    rows, cols = roi.shape
+    if (rows, cols) == win.shape[:2]:
+        return win
+    interp = cv2.INTER_AREA if roi.scale < 1 else cv2.INTER_NEAREST
+    return cv2.resize(win, (cols, rows), interpolation=interp)
+
+
+def apply_options(cfg: Config, options: EstimateOptions) -> Config:
+    """The config with the command line's overrides applied."""
+    if options.modalities is not None:
+        cfg = replace(cfg, modalities=tuple(options.modalities))
+    f = cfg.filter
+    if options.num_particles is not None:
+        f = replace(f, num_particles=options.num_particles)
+    if options.seed is not None:
+        f = replace(f, seed=options.seed)
+    return replace(cfg, filter=f)
+
+
+def estimate(
+    log_path: Path, cfg: Config, out_dir: Path, options: EstimateOptions = EstimateOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> dict:
+    """Run the filter over ``log_path`` and write track.mcap, track.csv, summary.json and
+    config.resolved.yaml into ``out_dir``; returns the summary."""
+    cfg = apply_options(cfg, options)
+    t_start = time.perf_counter()
+    scene = SceneModel(cfg, build_contact="contact" in cfg.modalities)
+    sensors = sensor_topics(cfg)
+    if not sensors and "contact" not in cfg.modalities:
+        raise EstimationError("no sensor is enabled: check modalities and sensors in the config")
+    results: list[FrameEstimate] = []
+    with McapLog(log_path) as log:
+        reader = FrameReader(log, sensors, log_topics(cfg))
+        total = _count_frames(log, sensors, options.max_frames)
+        estimator = Estimator(cfg, scene, lambda frame, t: reader.tf.lookup(cfg.frames.world, frame, t))
+        for frame in reader:
+            results.append(estimator.step(frame))
+            if progress is not None:
+                progress(len(results), total)
+            if options.max_frames is not None and len(results) >= options.max_frames:
+                break
+        skipped = list(reader.skipped)
+    if not results:
+        raise EstimationError(f"{log_path}: no frame with the configured sensors could be read")
+    elapsed = time.perf_counter() - t_start
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = _summary(results, cfg, log_path, elapsed, skipped)
+    write_track(out_dir, results, cfg, summary)
+    return summary
+
+
+def _count_frames(log: McapLog, sensors: list[SensorTopics], max_frames: int | None) -> int:
+    counts = [log.summary().topic(s.image_topic).message_count for s in sensors if log.summary().has_topic(s.image_topic)]
+    n = max(counts) if counts else 0
+    return min(n, max_frames) if max_frames else n
+
+
+def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped) -> dict:
+    last = results[-1]
+    q = se3.to_quat_xyzw(last.T_world_object)
+    qe = se3.to_quat_xyzw(last.T_ee_object)
+    flags: dict[str, int] = {}
+    for r in results:
+        for fl in r.flags:
+            flags[fl] = flags.get(fl, 0) + 1
+    out = {
+        "log": str(log_path),
+        "object": cfg.object.name,
+        "modalities": list(cfg.modalities),
+        "particles": cfg.filter.num_particles,
+        "seed": cfg.filter.seed,
+        "frames_processed": len(results),
+        "frames_skipped": len(skipped),
+        "run_time_s": round(elapsed, 3),
+        "time_per_frame_s": round(elapsed / len(results), 4),
+        "final": {
+            "stamp_ns": last.stamp_ns,
+            "T_world_object": {"translation_m": last.T_world_object[:3, 3].tolist(), "quaternion_xyzw": q.tolist()},
+            "T_ee_object": {"translation_m": last.T_ee_object[:3, 3].tolist(), "quaternion_xyzw": qe.tolist()},
+            "covariance_ee": last.covariance.tolist(),
+            "translation_std_m": float(np.sqrt(np.trace(last.covariance[:3, :3]) / 3)),
+            "rotation_std_deg": float(np.degrees(np.sqrt(np.trace(last.covariance[3:, 3:]) / 3))),
+            "ess": last.ess,
+        },
+        "flags": flags,
+    }
+    if last.T_world_object_gt is not None:
+        dt = last.T_world_object[:3, 3] - last.T_world_object_gt[:3, 3]
+        out["final"]["ground_truth_translation_error_mm"] = float(1000 * np.linalg.norm(dt))
+        out["final"]["ground_truth_rotation_error_deg"] = float(
+            np.degrees(se3.rotation_angle(last.T_world_object[:3, :3], last.T_world_object_gt[:3, :3]))
+        )
+    return out
+
+
+def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
+    """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
+    with LogWriter(out_dir / "track.mcap") as w:
+        for r in results:
+            w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
+            w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
+            w.write_pose_array("/mvtop/particles", r.particles_world, r.stamp_ns, cfg.frames.world)
+    lines = ["frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m,ee_qx,ee_qy,ee_qz,ee_qw,"
+             "std_translation_m,std_rotation_deg,ess,contact,mask_mode,flags"]
+    for r in results:
+        q = se3.to_quat_xyzw(r.T_world_object)
+        qe = se3.to_quat_xyzw(r.T_ee_object)
+        st = np.sqrt(np.trace(r.covariance[:3, :3]) / 3)
+        sr = np.degrees(np.sqrt(np.trace(r.covariance[3:, 3:]) / 3))
+        vals = [*r.T_world_object[:3, 3], *q, *r.T_ee_object[:3, 3], *qe]
+        contact = "" if r.contact is None else str(int(r.contact))
+        lines.append(",".join([str(r.index), str(r.stamp_ns)] + [f"{v:.9f}" for v in vals]
+                              + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)]))
+    with atomic_output(out_dir / "track.csv", "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    with atomic_output(out_dir / "summary.json", "w") as fh:
+        json.dump(summary, fh, indent=2)
+        fh.write("\n")
+    with atomic_output(out_dir / "config.resolved.yaml", "w") as fh:
+        fh.write(dump_config(cfg))

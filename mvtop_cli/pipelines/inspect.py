@@ -1,0 +1,182 @@
+"""Inspect a log: topics, types, counts, rates, time range, and what a config needs but the log lacks."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ..io import ros2_msgs as rm
+from ..io.mcap_reader import LogSummary, McapLog
+
+
+@dataclass(frozen=True)
+class InspectReport:
+    """What ``inspect_log`` found.
+
+    ``wrong_types`` holds ``(topic, expected, actual)``; ``empty_topics`` required topics
+    that exist but carry no message; ``tf_frames`` every frame named on a TFMessage
+    topic (None when TF was not scanned); ``missing_frames`` required frames not among
+    them.
+    """
+
+    summary: LogSummary
+    required_topics: dict[str, str]
+    missing_topics: tuple[str, ...]
+    wrong_types: tuple[tuple[str, str, str], ...]
+    empty_topics: tuple[str, ...]
+    tf_frames: tuple[str, ...] | None
+    required_frames: tuple[str, ...]
+    missing_frames: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        """True when every requirement is met and the log is complete."""
+        return not (
+            self.missing_topics
+            or self.wrong_types
+            or self.empty_topics
+            or self.missing_frames
+            or self.summary.truncated_at is not None
+        )
+
+
+def _tf_frames(log: McapLog) -> tuple[str, ...]:
+    """Every frame named by any TFMessage topic (parents and children)."""
+    tf_topics = [t.name for t in log.summary().topics if rm.normalize_type(t.type) == rm.TF_MESSAGE and t.message_count]
+    frames: set[str] = set()
+    if not tf_topics:
+        return ()
+    for m in log.messages(tf_topics):
+        for tr in m.msg.transforms:
+            frames.add(str(tr.header.frame_id).lstrip("/"))
+            frames.add(str(tr.child_frame_id).lstrip("/"))
+    return tuple(sorted(frames))
+
+
+def inspect_log(
+    path: str | Path,
+    required_topics: dict[str, str] | None = None,
+    required_frames: list[str] | None = None,
+    *,
+    scan_tf: bool | None = None,
+) -> InspectReport:
+    """Summarise the log at ``path`` (an .mcap file or a rosbag2 folder) and check it against
+    ``required_topics`` (topic -> ``pkg/msg/Name``) and ``required_frames`` (TF frame names).
+
+    TF frames are collected (which reads every TF message) when ``scan_tf`` is True, or
+    by default when ``required_frames`` is given. An interrupted recording (no footer)
+    is read up to its last complete record and flagged rather than rejected; other
+    unreadable logs raise LogError.
+    """
+    required_topics = dict(required_topics or {})
+    required_frames = list(required_frames or [])
+    with McapLog(path, allow_truncated=True) as log:
+        summary = log.summary()
+        missing, wrong, empty = [], [], []
+        for topic, expected in required_topics.items():
+            if not summary.has_topic(topic):
+                missing.append(topic)
+                continue
+            info = summary.topic(topic)
+            if expected and rm.normalize_type(info.type) != rm.normalize_type(expected):
+                wrong.append((topic, rm.normalize_type(expected), info.type))
+            elif info.message_count == 0:
+                empty.append(topic)
+        do_tf = bool(required_frames) if scan_tf is None else scan_tf
+        frames = _tf_frames(log) if do_tf else None
+    missing_frames = tuple(f for f in required_frames if frames is None or f.lstrip("/") not in frames)
+    return InspectReport(
+        summary=summary,
+        required_topics=required_topics,
+        missing_topics=tuple(missing),
+        wrong_types=tuple(wrong),
+        empty_topics=tuple(empty),
+        tf_frames=frames,
+        required_frames=tuple(required_frames),
+        missing_frames=missing_frames,
+    )
+
+
+def _time(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    # Logs stamped with wall-clock time read best as dates; simulated time (small
+    # numbers) as seconds.
+    if ns > 10**17:
+        dt = datetime.fromtimestamp(ns // 1_000_000_000, tz=timezone.utc)
+        return f"{dt:%Y-%m-%d %H:%M:%S}.{ns % 1_000_000_000:09d} UTC"
+    return f"{ns * 1e-9:.9f} s"
+
+
+def _table(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return [line(header), line(["-" * w for w in widths])] + [line(r) for r in rows]
+
+
+def format_report(report: InspectReport) -> str:
+    """The report as plain text: a header block, a topic table, then the requirement checks."""
+    s = report.summary
+    lines = [f"log:         {s.path}"]
+    if len(s.files) > 1 or (s.files and s.files[0] != s.path):
+        lines.append(f"files:       {len(s.files)} ({', '.join(f.name for f in s.files)})")
+    lines += [
+        f"profile:     {s.profile or '-'}  (written by {s.library or 'unknown'})",
+        f"compression: {', '.join(s.compression) or '-'}" + ("" if s.indexed else "  (no summary section: scanned)"),
+        f"messages:    {s.message_count} on {len(s.topics)} topics",
+        f"start:       {_time(s.start_ns)}",
+        f"end:         {_time(s.end_ns)}",
+        f"duration:    {s.duration_s:.3f} s",
+    ]
+    if s.truncated_at is not None:
+        f, offset = s.truncated_at
+        lines.append(f"WARNING:     {f.name} is truncated at byte {offset}; only complete records were read")
+    lines.append("")
+    need = report.required_topics
+    rows = []
+    for t in s.topics:
+        rows.append(
+            [
+                t.name,
+                t.type or "(no schema)",
+                str(t.message_count),
+                "-" if t.rate_hz is None else f"{t.rate_hz:.2f}",
+                "-" if t.first_ns is None or t.last_ns is None else f"{(t.last_ns - t.first_ns) * 1e-9:.3f}",
+                "required" if t.name in need else "",
+            ]
+        )
+    for topic in report.missing_topics:
+        rows.append([topic, rm.normalize_type(need[topic]) if need[topic] else "?", "-", "-", "-", "MISSING"])
+    for topic, expected, _actual in report.wrong_types:
+        row = next(r for r in rows if r[0] == topic)
+        row[5] = f"WRONG TYPE (expected {expected})"
+    for topic in report.empty_topics:
+        row = next(r for r in rows if r[0] == topic)
+        row[5] = "EMPTY"
+    lines += _table(["topic", "type", "count", "rate Hz", "span s", "check"], rows, right={2, 3, 4})
+    if report.tf_frames is not None:
+        lines += ["", f"TF frames:   {', '.join(report.tf_frames) or '(none)'}"]
+    if need or report.required_frames:
+        lines.append("")
+        problems = []
+        if report.missing_topics:
+            problems.append(f"missing topics: {', '.join(report.missing_topics)}")
+        if report.wrong_types:
+            problems.append(
+                "wrong types: " + ", ".join(f"{t} is {a} (expected {e})" for t, e, a in report.wrong_types)
+            )
+        if report.empty_topics:
+            problems.append(f"topics without messages: {', '.join(report.empty_topics)}")
+        if report.missing_frames:
+            problems.append(f"missing TF frames: {', '.join(report.missing_frames)}")
+        if s.truncated_at is not None:
+            problems.append("the log is truncated")
+        if problems:
+            lines += ["PROBLEMS:"] + [f"  - {p}" for p in problems]
+        else:
+            lines.append("OK: every required topic and TF frame is present.")
+    return "\n".join(lines)

@@ -1,0 +1,271 @@
+"""``mvtop simulate``: render one insertion episode and write it as a ROS 2 MCAP log.
+
+The log carries what a real setup records (see docs/log-format.md) plus the ground-truth
+object pose: two RGB cameras, two GelSight-like tactile sensors (image and indentation depth),
+TF, finger joint states, the contact flag, the wrench, and ``/ground_truth/object_pose``.
+The same options and seed give a byte-identical file.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import trimesh
+
+from ..errors import MvtopError
+from ..geometry import se3
+from ..io.mcap_writer import LogWriter
+from ..sim import gripper as grip
+from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects
+from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode
+from ..sim.objects import get_object
+from ..sim.scene import board_mesh, camera_placements, receptacle_pose, table_mesh
+from ..sim.tactile import make_background, render_tactile_image
+
+TACTILE_SIDES = ("left", "right")
+INDENTATION_STEP_M = 1e-6
+FINGER_JOINTS = ("finger_left_joint", "finger_right_joint")
+
+
+@dataclass(frozen=True)
+class SimulateOptions:
+    """Everything that defines a simulated log besides the seed and the object."""
+
+    episode: EpisodeOptions = field(default_factory=EpisodeOptions)
+    width: int = 640
+    height: int = 480
+    noise_std: float = 2.0  # camera read noise [DN]
+    exposure_jitter: float = 0.0  # std of the per-frame log exposure (0: constant lighting)
+    low_contrast: bool = False  # object painted like the gripper (the paper's peg case)
+    object_rgb: tuple[float, float, float] | None = None  # paint the object this colour (0-1)
+    occluders: int = 0  # extra cables in front of the object
+    image_format: str = "jpeg"  # cameras: jpeg | png | raw
+    tactile_format: str = "jpeg"  # tactile images: jpeg | png | raw
+    jpeg_quality: int = 90
+    gel_distance_m: float = 0.025
+    tactile_noise_std: float = 1.5
+    compression: str = "zstd"
+
+
+@dataclass(frozen=True)
+class SimulationSummary:
+    path: Path
+    frames: int
+    contact_frames: int
+    bytes: int
+
+
+def _material(rgba, metallic=0.0, roughness=0.7) -> Material:
+    return Material(tuple(float(c) for c in rgba[:3]), metallic, roughness)
+
+
+def _cable(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A 3 mm cable hanging from above the object, in the object frame."""
+    length = rng.uniform(0.05, 0.09)
+    cyl = trimesh.creation.cylinder(radius=0.0015, height=length, sections=16)
+    tilt = se3.make_pose(se3.rotvec_to_matrix(np.array([rng.uniform(0.3, 0.8), rng.uniform(-0.8, 0.8), 0.0])), np.zeros(3))
+    offset = se3.make_pose(np.eye(3), [rng.uniform(-0.01, 0.01), rng.uniform(-0.02, -0.012), 0.02 + length / 2])
+    return cyl, offset @ tilt
+
+
+def simulate(
+    object_name: str,
+    seed: int,
+    out: Path,
+    options: SimulateOptions = SimulateOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> SimulationSummary:
+    """Simulate one episode of ``object_name`` with ``seed`` and write the log to ``out``."""
+    if options.image_format not in ("jpeg", "png", "raw") or options.tactile_format not in ("jpeg", "png", "raw"):
+        raise MvtopError(f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}")
+    spec = get_object(object_name)
+    rng = np.random.default_rng(seed)
+    ep_rng, cam_rng, tac_rng, scene_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=4))
+
+    T_world_rec = receptacle_pose(spec.receptacle_mesh)
+    collider = Collider(spec.mesh, [(spec.receptacle_mesh, T_world_rec), (board_mesh(), np.eye(4))])
+    states = plan_episode(T_world_rec, spec.insertion_depth_m, spec.grasp, spec.mesh, collider, options.episode, ep_rng)
+
+    target = T_world_rec[:3, 3] + np.array([0.0, 0.0, 0.012])
+    cameras = camera_placements(target, options.width, options.height)
+    fingers = grip.gripper_meshes()
+    finger_mat = _material(grip.FINGER_COLOR_RGBA, metallic=0.6, roughness=0.45)
+    obj_mat = finger_mat if options.low_contrast else _material(spec.color_rgba, spec.metallic, spec.roughness)
+    if options.object_rgb is not None:
+        obj_mat = Material(tuple(float(c) for c in options.object_rgb), 0.0, 0.8)
+    parts: dict[str, tuple[trimesh.Trimesh, Material]] = {
+        "table": (table_mesh(), Material((0.36, 0.30, 0.24), 0.0, 0.9)),
+        "board": (board_mesh(), Material((0.12, 0.30, 0.16), 0.0, 0.6)),
+        "receptacle": (spec.receptacle_mesh, _material(spec.receptacle_color_rgba, 0.0, 0.5)),
+        "finger_left": (fingers["left"], finger_mat),
+        "finger_right": (fingers["right"], finger_mat),
+        "object": (spec.mesh, obj_mat),
+    }
+    cables = [_cable(scene_rng) for _ in range(options.occluders)]
+    for i, (mesh, _) in enumerate(cables):
+        parts[f"cable{i}"] = (mesh, Material((0.08, 0.08, 0.09), 0.0, 0.5))
+    cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
+    cam_renderer.set_pose("receptacle", T_world_rec)
+    tac_camera = grip.tactile_camera(options.gel_distance_m)
+    tac_renderer = CameraSceneRenderer(
+        {"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height, renderer=cam_renderer.renderer
+    )
+    T_finger_tac = grip.T_finger_tactile_optical(options.gel_distance_m)
+    mm_per_px = 1000.0 * options.gel_distance_m / tac_camera.fx
+    backgrounds = {side: make_background(tac_camera.height, tac_camera.width, tac_rng) for side in TACTILE_SIDES}
+
+    key_dir = se3.make_pose(se3.rotvec_to_matrix(np.array([np.radians(-50.0), np.radians(25.0), 0.0])), np.zeros(3))
+    t0 = states[0].stamp_ns
+    try:
+        with LogWriter(out, compression=options.compression) as log:
+            static = [(("world", f"{c.name}_optical", c.T_world_camera)) for c in cameras]
+            static += [(f"finger_{s}", f"tactile_{s}_optical", T_finger_tac) for s in TACTILE_SIDES]
+            log.write_tf(static, t0, static=True)
+            for k, st in enumerate(states):
+                _write_frame(log, st, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
+                             backgrounds, cables, key_dir, options, cam_rng, tac_rng)
+                if progress is not None:
+                    progress(k + 1, len(states))
+    finally:
+        cam_renderer.close()
+    return SimulationSummary(Path(out), len(states), sum(s.contact for s in states), os.path.getsize(out))
+
+
+def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
+                 backgrounds, cables, key_dir, options: SimulateOptions, cam_rng, tac_rng) -> None:
+    t = st.stamp_ns
+    T_world_obj = st.T_world_object
+    T_ee_fingers = grip.finger_poses(st.finger_opening_m)
+    log.write_tf(
+        [("world", "ee", st.T_world_ee)] + [("ee", f"finger_{s}", T_ee_fingers[s]) for s in TACTILE_SIDES], t
+    )
+    log.write_joint_state("/joint_states", FINGER_JOINTS, [st.pad_left_y_m, -st.pad_right_y_m], t)
+    log.write_bool("/contact", bool(st.contact), t)
+    log.write_wrench("/wrench", [0.0, 0.0, st.press_force_n], [0.0, 0.0, 0.0], t, "ee")
+    log.write_pose("/ground_truth/object_pose", T_world_obj, t, "world")
+
+    cam_renderer.set_pose("object", T_world_obj)
+    for s in TACTILE_SIDES:
+        cam_renderer.set_pose(f"finger_{s}", st.T_world_ee @ T_ee_fingers[s])
+    for i, (_, T_obj_cable) in enumerate(cables):
+        cam_renderer.set_pose(f"cable{i}", T_world_obj @ T_obj_cable)
+    exposure = float(np.exp(cam_rng.normal(0.0, options.exposure_jitter))) if options.exposure_jitter > 0 else 1.0
+    cam_renderer.set_lights(key_dir, T_world_obj[:3, 3] + np.array([-0.15, -0.25, 0.35]), 3.0, 1.2)
+    photo = PhotometricOptions(exposure=exposure, noise_std=options.noise_std)
+    for cam in cameras:
+        linear, _ = cam_renderer.render(cam.camera, cam.T_world_camera)
+        rgb = apply_camera_effects(linear, photo, cam_rng)
+        _write_rgb(log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality)
+        log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")
+
+    for s in TACTILE_SIDES:
+        T_world_tac = st.T_world_ee @ T_ee_fingers[s] @ T_finger_tac
+        tac_renderer.set_pose("object", T_world_obj)
+        depth = tac_renderer.render_depth_only(tac_camera, T_world_tac, only="object")
+        indentation = indentation_from_depth(depth, options.gel_distance_m)
+        img = render_tactile_image(indentation, mm_per_px, backgrounds[s], tac_rng, noise_std=options.tactile_noise_std)
+        frame_id = f"tactile_{s}_optical"
+        _write_rgb(log, f"/tactile/{s}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
+        log.write_depth(f"/tactile/{s}/depth", indentation, t, frame_id)
+        log.write_camera_info(f"/tactile/{s}/camera_info", tac_camera, t, frame_id)
+
+
+def indentation_from_depth(depth_m: np.ndarray, gel_distance_m: float, gel_thickness_m: float = 0.004) -> np.ndarray:
+    """Gel indentation (H, W) float32 [m] from the object's depth seen by the tactile camera:
+    how far the object surface reaches past the undeformed gel plane (0 where it does not),
+    on a 1 um grid (far below what a gel resolves; it makes the depth topic compress 15x)."""
+    ind = np.where(depth_m > 0, gel_distance_m - depth_m, 0.0)
+    ind = np.clip(ind, 0.0, gel_thickness_m)
+    return (np.round(ind / INDENTATION_STEP_M) * INDENTATION_STEP_M).astype(np.float32)
+
+
+def _write_rgb(log, base_topic: str, rgb: np.ndarray, t: int, frame_id: str, fmt: str, quality: int) -> None:
+    if fmt == "raw":
+        log.write_image(base_topic, rgb, t, frame_id, encoding="rgb8")
+    else:
+        log.write_compressed_image(f"{base_topic}/compressed", rgb, t, frame_id, fmt=fmt, jpeg_quality=quality)
+
+
+def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: float = 0.025) -> dict:
+    """The YAML config (as plain data) that describes the simulated scene of ``object_name`` so
+    that ``mvtop estimate`` runs on its logs; mesh paths are relative to the config file."""
+    spec = get_object(object_name)
+    T_world_rec = receptacle_pose(spec.receptacle_mesh)
+    from ..config import PoseSpec
+
+    def pose(T: np.ndarray) -> dict:
+        p = PoseSpec.from_matrix(T)
+        return {"xyz_m": [round(v, 9) for v in p.xyz_m], "rpy_deg": [round(v, 9) for v in p.rpy_deg]}
+
+    sym = []
+    for S in spec.symmetry[1:]:
+        sym.append(pose(S))
+    cameras = [
+        {"name": n, "image_topic": f"/cameras/{n}/image/compressed", "info_topic": f"/cameras/{n}/camera_info",
+         "frame": f"{n}_optical"}
+        for n in ("front", "side")
+    ]
+    tactile = [
+        {"name": s, "image_topic": f"/tactile/{s}/image/compressed", "info_topic": f"/tactile/{s}/camera_info",
+         "depth_topic": f"/tactile/{s}/depth", "frame": f"tactile_{s}_optical", "gel_distance_m": gel_distance_m}
+        for s in TACTILE_SIDES
+    ]
+    return {
+        "object": {
+            "name": object_name,
+            "mesh": f"{mesh_dir}/{object_name}.obj",
+            "units": "m",
+            "clearance_m": float(spec.clearance_m),
+            "insertion_depth_m": float(spec.insertion_depth_m),
+            "symmetries": sym,
+        },
+        "environment": [
+            {"name": "receptacle", "mesh": f"{mesh_dir}/{object_name}_receptacle.obj", "frame": "world",
+             "pose": pose(T_world_rec)},
+            {"name": "board", "mesh": f"{mesh_dir}/board.obj", "frame": "world"},
+            {"name": "finger_left", "mesh": f"{mesh_dir}/finger.obj", "frame": "finger_left", "collide": False},
+            {"name": "finger_right", "mesh": f"{mesh_dir}/finger.obj", "frame": "finger_right", "collide": False},
+        ],
+        "sensors": {"cameras": cameras, "tactile": tactile},
+        "grasp_prior": {"pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0},
+    }
+
+
+def export_scene_meshes(out_dir: Path, objects: list[str] | None = None) -> list[Path]:
+    """Write the meshes the scene configs reference (object, receptacle, finger, board) as OBJ
+    files into ``out_dir``; returns the paths written."""
+    from ..io.meshes import write_obj
+    from ..sim.objects import list_objects
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meshes = {}
+    for name in objects or list_objects():
+        spec = get_object(name)
+        meshes[name] = spec.mesh
+        meshes[f"{name}_receptacle"] = spec.receptacle_mesh
+    meshes["finger"] = grip.gripper_meshes()["left"]
+    meshes["board"] = board_mesh()
+    return [write_obj(mesh, out_dir / f"{name}.obj", name) for name, mesh in meshes.items()]
+
+
+def write_scene_config(object_name: str, path: Path) -> Path:
+    """Write the scene config of ``object_name`` to ``path`` and its meshes to ``meshes/`` beside it."""
+    import yaml
+
+    from ..io.atomic import atomic_output
+
+    path = Path(path)
+    export_scene_meshes(path.parent / "meshes", [object_name])
+    text = (
+        f"# mvtop config for the simulated {object_name} scene (mvtop simulate --object {object_name}).\n"
+        "# Units: metres and degrees as the key names say; mesh paths are relative to this file.\n"
+        + yaml.safe_dump(scene_config(object_name), sort_keys=False)
+    )
+    with atomic_output(path) as fh:
+        fh.write(text.encode())
+    return path

@@ -1,0 +1,53 @@
+"""Small typed records that carry one observation frame from the log reader to the core.
+
+The reader turns raw ROS 2 messages into these; nothing past ``io`` sees a message.
+Poses are (4, 4) float64 ``T_a_b`` arrays (see ``geometry.se3``), times int nanoseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .geometry.camera import PinholeCamera
+
+
+@dataclass(frozen=True)
+class SensorImage:
+    """One image of one sensor, with what is needed to render into it.
+
+    ``image`` is (H, W, 3) uint8 RGB (mono images are expanded to three channels);
+    ``T_world_sensor`` is the sensor's optical frame (z forward) in ``world`` at
+    ``stamp_ns``; ``depth`` is, for tactile sensors that publish it, the gel
+    indentation (H, W) float32 [m] (0 where undeformed).
+    """
+
+    sensor: str
+    stamp_ns: int
+    image: np.ndarray
+    camera: PinholeCamera
+    T_world_sensor: np.ndarray
+    depth: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One time-ordered observation frame of a log.
+
+    ``cameras`` and ``tactile`` map the config's sensor name to its image (a sensor
+    with no image in this frame is absent). ``T_world_ee`` is the end effector (tool
+    centre point between the fingertips) in ``world`` at ``stamp_ns``; ``contact`` is
+    the contact state at that time (None when the log has no contact signal);
+    ``finger_opening_m`` the distance between the finger pads [m] when known;
+    ``T_world_object_gt`` the ground-truth object pose when the log carries one.
+    """
+
+    index: int
+    stamp_ns: int
+    T_world_ee: np.ndarray
+    cameras: dict[str, SensorImage] = field(default_factory=dict)
+    tactile: dict[str, SensorImage] = field(default_factory=dict)
+    contact: bool | None = None
+    finger_opening_m: float | None = None
+    T_world_object_gt: np.ndarray | None = None

@@ -1,0 +1,142 @@
+"""The batched CPU renderer: all particles of one sensor rasterised by numba in parallel, no GL context."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from mvtop_cli.geometry.camera import PinholeCamera
+from mvtop_cli.render import raster
+from mvtop_cli.render.base import Occluder, RendererBase, RenderMode
+from mvtop_cli.render.iou import iou_from_counts
+from mvtop_cli.render.mesh import RenderMesh
+from mvtop_cli.render.roi import Roi
+
+
+def _intrinsics(camera: PinholeCamera, roi: Roi) -> tuple[np.ndarray, int, int]:
+    cam = roi.camera(camera)
+    intr = np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64)
+    return intr, int(cam.width), int(cam.height)
+
+
+class NumbaMaskRenderer(RendererBase):
+    """:class:`~mvtop_cli.render.base.MaskRenderer` on a numba rasteriser (parallel over poses).
+
+    Back faces are culled for closed meshes (watertight, outward winding), which changes no
+    mask. ``score_masks`` renders and scores in one pass without keeping the masks.
+    The first call compiles the kernels (cached on disk by numba afterwards).
+
+    znear_m : near clipping distance [m]
+    """
+
+    def _invdepth(self, mesh: RenderMesh, T: np.ndarray, intr: np.ndarray, w: int, h: int, thr: np.ndarray | None):
+        """Largest inverse depth (N, h * w) float32 [1/m] of ``mesh`` at poses ``T``; fragments
+        not in front of ``thr`` (h * w,) (inverse depths) are dropped when it is given."""
+        out = np.zeros((len(T), w * h), dtype=np.float32)
+        use_thr = thr is not None
+        t = thr if use_thr else np.zeros(1)
+        raster.render_invdepth_kernel(
+            T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m,
+            t, float(t.min()), use_thr, raster.chunk_count(len(T)), out,
+        )  # fmt: skip
+        return out
+
+    def _threshold(
+        self,
+        occluders: Sequence[Occluder] | None,
+        intr: np.ndarray,
+        w: int,
+        h: int,
+        plane_m: float | None,
+    ) -> np.ndarray | None:
+        """Per-pixel inverse depth (h * w,) float64 a fragment must exceed, or None for none."""
+        occ = self._occluders(occluders)
+        if not occ and plane_m is None:
+            return None
+        thr = np.zeros(w * h, dtype=np.float64)
+        for mesh, T in occ:
+            np.maximum(thr, self._invdepth(mesh, T[None], intr, w, h, None)[0], out=thr)
+        if plane_m is not None:
+            np.maximum(thr, 1.0 / plane_m, out=thr)
+        return thr
+
+    def render_masks(
+        self,
+        mesh_id: str,
+        T_sensor_object: np.ndarray,
+        camera: PinholeCamera,
+        roi: Roi,
+        occluders: Sequence[Occluder] | None = None,
+        mode: RenderMode = "silhouette",
+        gel_distance_m: float | None = None,
+        penetration_threshold_m: float = 0.0,
+    ) -> np.ndarray:
+        """Masks (N, h, w) bool of mesh ``mesh_id`` at poses ``T_sensor_object`` (N, 4, 4)."""
+        T = self._poses(T_sensor_object)
+        mesh = self.mesh(mesh_id)
+        plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
+        intr, w, h = _intrinsics(camera, roi)
+        thr = self._threshold(occluders, intr, w, h, plane)
+        out = np.zeros((len(T), w * h), dtype=np.bool_)
+        use_thr = thr is not None
+        t = thr if use_thr else np.zeros(1)
+        raster.render_masks_kernel(
+            T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m,
+            t, float(t.min()), use_thr, raster.chunk_count(len(T)), out,
+        )  # fmt: skip
+        return out.reshape(len(T), h, w)
+
+    def score_masks(
+        self,
+        mesh_id: str,
+        T_sensor_object: np.ndarray,
+        camera: PinholeCamera,
+        roi: Roi,
+        observed: np.ndarray,
+        occluders: Sequence[Occluder] | None = None,
+        mode: RenderMode = "silhouette",
+        gel_distance_m: float | None = None,
+        penetration_threshold_m: float = 0.0,
+        observed_outside: float = 0.0,
+        empty_score: float = 1.0,
+    ) -> np.ndarray:
+        """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool, rendered and
+        counted in one pass; arguments as :meth:`RendererBase.score_masks`."""
+        T = self._poses(T_sensor_object)
+        mesh = self.mesh(mesh_id)
+        plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
+        intr, w, h = _intrinsics(camera, roi)
+        obs = np.asarray(observed, dtype=bool)
+        if obs.shape != (h, w):
+            raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
+        obs = np.ascontiguousarray(obs).reshape(-1).view(np.uint8)
+        thr = self._threshold(occluders, intr, w, h, plane)
+        use_thr = thr is not None
+        t = thr if use_thr else np.zeros(1)
+        area = np.empty(len(T), dtype=np.int64)
+        inter = np.empty(len(T), dtype=np.int64)
+        raster.score_masks_kernel(
+            T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m,
+            t, float(t.min()), use_thr, raster.chunk_count(len(T)), obs, area, inter,
+        )  # fmt: skip
+        return iou_from_counts(area, inter, float(obs.sum()) + observed_outside, empty_score)
+
+    def render_depth(
+        self,
+        mesh_id: str,
+        T_sensor_object: np.ndarray,
+        camera: PinholeCamera,
+        roi: Roi,
+        occluders: Sequence[Occluder] | None = None,
+    ) -> np.ndarray:
+        """Depth z (N, h, w) float32 [m] of the object's nearest visible surface, ``inf``
+        where the object is not seen (absent or behind an occluder)."""
+        T = self._poses(T_sensor_object)
+        mesh = self.mesh(mesh_id)
+        intr, w, h = _intrinsics(camera, roi)
+        thr = self._threshold(occluders, intr, w, h, None)
+        iz = self._invdepth(mesh, T, intr, w, h, thr)
+        with np.errstate(divide="ignore"):
+            depth = np.where(iz > 0, np.float32(1.0) / iz, np.float32(np.inf)).astype(np.float32)
+        return depth.reshape(len(T), h, w)

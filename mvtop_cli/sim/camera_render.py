@@ -1,0 +1,142 @@
+"""Photometric rendering of the external RGB cameras with pyrender (EGL, offscreen).
+
+Each simulated frame renders the full scene (table, board, receptacle, fingers, object and any
+extra occluders) with materials and lights, then applies exposure, sensor noise and blur.
+The object's visible pixels come from the same depth buffer, for tests and debugging.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from ..geometry.camera import PinholeCamera
+
+GL_FROM_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL camera (y up, looks down -z) in optical
+
+
+def import_pyrender():
+    """Import pyrender for offscreen EGL rendering.
+
+    Sets ``PYOPENGL_PLATFORM=egl`` unless the user chose a platform, and restores ``np.infty``
+    (removed in numpy 2, still used by pyrender 0.1.45 when it computes mesh bounds).
+    """
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    if not hasattr(np, "infty"):
+        np.infty = np.inf  # type: ignore[attr-defined]
+    import pyrender
+
+    return pyrender
+
+
+def pyrender_intrinsics(pyrender, camera: PinholeCamera, znear: float = 0.005, zfar: float = 5.0):
+    """A pyrender camera equal to ``camera``. pyrender puts pixel centres at +0.5 (OpenGL),
+    OpenCV at integers, hence the half-pixel shift of the principal point."""
+    return pyrender.IntrinsicsCamera(
+        fx=camera.fx, fy=camera.fy, cx=camera.cx + 0.5, cy=camera.cy + 0.5, znear=znear, zfar=zfar
+    )
+
+
+@dataclass(frozen=True)
+class Material:
+    """Base colour (RGB 0-1), metalness and roughness of a simulated part."""
+
+    rgb: tuple[float, float, float]
+    metallic: float = 0.0
+    roughness: float = 0.7
+
+
+@dataclass(frozen=True)
+class PhotometricOptions:
+    """Camera effects: exposure gain, Gaussian read noise [DN of 255], blur sigma [px]."""
+
+    exposure: float = 1.0
+    noise_std: float = 2.0
+    blur_px: float = 0.6
+
+
+class CameraSceneRenderer:
+    """Renders RGB images of a set of named meshes whose poses change per frame."""
+
+    def __init__(self, meshes: dict[str, tuple[trimesh.Trimesh, Material]], width: int, height: int, renderer=None):
+        """``renderer``: a pyrender.OffscreenRenderer to share (one EGL context per process:
+        deleting one of several renderers tears down the others' display); the viewport is set
+        to ``width`` x ``height`` before every render. ``close`` deletes it only if owned."""
+        pr = import_pyrender()
+        self._pr = pr
+        self.scene = pr.Scene(bg_color=[0.55, 0.58, 0.62, 1.0], ambient_light=[0.25, 0.25, 0.25])
+        self.nodes: dict[str, object] = {}
+        self.meshes: dict[str, object] = {}
+        for name, (mesh, mat) in meshes.items():
+            material = pr.MetallicRoughnessMaterial(
+                baseColorFactor=[*mat.rgb, 1.0], metallicFactor=mat.metallic, roughnessFactor=mat.roughness
+            )
+            pm = pr.Mesh.from_trimesh(mesh, material=material, smooth=False)
+            self.meshes[name] = pm
+            self.nodes[name] = self.scene.add(pm, pose=np.eye(4), name=name)
+        self._key = self.scene.add(pr.DirectionalLight(color=np.ones(3), intensity=3.0), pose=np.eye(4))
+        self._fill = self.scene.add(pr.PointLight(color=np.ones(3), intensity=1.5), pose=np.eye(4))
+        self._cam_node = None
+        self._owns_renderer = renderer is None
+        self.renderer = pr.OffscreenRenderer(width, height) if renderer is None else renderer
+        self.width, self.height = width, height
+
+    def set_pose(self, name: str, T_world_mesh: np.ndarray) -> None:
+        self.scene.set_pose(self.nodes[name], pose=np.asarray(T_world_mesh, dtype=float))
+
+    def set_lights(self, T_world_key: np.ndarray, fill_position: np.ndarray, key_intensity: float, fill_intensity: float) -> None:
+        self.scene.set_pose(self._key, pose=T_world_key)
+        T = np.eye(4)
+        T[:3, 3] = fill_position
+        self.scene.set_pose(self._fill, pose=T)
+        self._key.light.intensity = key_intensity
+        self._fill.light.intensity = fill_intensity
+
+    def _set_camera(self, camera: PinholeCamera, T_world_camera: np.ndarray) -> None:
+        self.renderer.viewport_width, self.renderer.viewport_height = self.width, self.height
+        if self._cam_node is not None:
+            self.scene.remove_node(self._cam_node)
+        cam = pyrender_intrinsics(self._pr, camera)
+        self._cam_node = self.scene.add(cam, pose=np.asarray(T_world_camera) @ GL_FROM_OPTICAL)
+
+    def render(self, camera: PinholeCamera, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Linear RGB (H, W, 3) float in [0, 1] and depth (H, W) [m] (0 = background)."""
+        self._set_camera(camera, T_world_camera)
+        color, depth = self.renderer.render(self.scene)
+        return color.astype(np.float32) / 255.0, depth
+
+    def render_depth_only(self, camera: PinholeCamera, T_world_camera: np.ndarray, only: str) -> np.ndarray:
+        """Depth (H, W) [m] of the mesh ``only`` alone (every other mesh hidden)."""
+        self._set_camera(camera, T_world_camera)
+        hidden = [m for n, m in self.meshes.items() if n != only and m.is_visible]
+        for m in hidden:
+            m.is_visible = False
+        try:
+            depth = self.renderer.render(self.scene, flags=self._pr.RenderFlags.DEPTH_ONLY)
+        finally:
+            for m in hidden:
+                m.is_visible = True
+        return depth
+
+    def close(self) -> None:
+        if self._owns_renderer:
+            self.renderer.delete()
+
+
+def visible_mask(scene_depth: np.ndarray, part_depth: np.ndarray, tol_m: float = 2e-4) -> np.ndarray:
+    """Pixels (H, W) bool where the part is the nearest surface in the full scene."""
+    return (part_depth > 0) & (np.abs(scene_depth - part_depth) <= tol_m)
+
+
+def apply_camera_effects(linear_rgb: np.ndarray, options: PhotometricOptions, rng: np.random.Generator) -> np.ndarray:
+    """Exposure, optical blur, read noise and 8-bit quantisation of a rendered image."""
+    import cv2
+
+    img = np.clip(linear_rgb * options.exposure, 0.0, 1.0)
+    if options.blur_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), options.blur_px)
+    img = img * 255.0 + rng.normal(0.0, options.noise_std, size=img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)

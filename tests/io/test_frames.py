@@ -1,0 +1,172 @@
+"""Frames from a synthetic log with known motion: grouping, poses, images, contact, fingers, ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _io_scene import (
+    CAMERA,
+    MISSING,
+    MS,
+    N_FRAMES,
+    OFFSETS,
+    T0,
+    TACTILE,
+    depth_of,
+    image_of,
+    trigger,
+    write_scene,
+)
+
+from mvtop_cli.errors import LogError
+from mvtop_cli.io.frames import FrameReader, LogTopics, SensorTopics, iter_frames
+from mvtop_cli.io.mcap_reader import McapLog
+from mvtop_cli.io.mcap_writer import LogWriter
+
+SENSORS = [
+    SensorTopics.default("front", "camera"),
+    SensorTopics.default("side", "camera", compressed=True),
+    SensorTopics.default("left", "tactile", depth=True),
+    SensorTopics.default("right", "tactile"),
+]
+TOPICS = LogTopics(sync_tolerance_ns=5 * MS)
+
+
+def read_frames(path, **kw):
+    with McapLog(path) as log:
+        reader = FrameReader(log, SENSORS, TOPICS, **kw)
+        frames = list(reader)
+    return frames, reader
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_frames_match_the_known_scene(tmp_path, compression):
+    path = tmp_path / f"scene_{compression}.mcap"
+    sc = write_scene(path, compression)
+    frames, reader = read_frames(path)
+
+    assert [f.index for f in frames] == list(range(N_FRAMES))
+    # The image before the first /tf sample is skipped and reported, not fatal.
+    assert len(reader.skipped) == 1 and reader.skipped[0][0] == T0 - 30 * MS
+    assert "no TF for world -> ee" in reader.skipped[0][1]
+
+    for k, f in enumerate(frames):
+        present = [n for n in OFFSETS if (n, k) not in MISSING]
+        assert f.stamp_ns == trigger(k) + min(OFFSETS[n] for n in present)  # earliest stamp
+        assert set(f.cameras) == {n for n in ("front", "side") if n in present}
+        assert set(f.tactile) == {"left", "right"}
+        np.testing.assert_allclose(f.T_world_ee, sc.T_world_ee(f.stamp_ns), atol=1e-12)
+        for name, img in {**f.cameras, **f.tactile}.items():
+            st = trigger(k) + OFFSETS[name]
+            assert img.stamp_ns == st
+            shape = (CAMERA.height, CAMERA.width) if name in ("front", "side") else (TACTILE.height, TACTILE.width)
+            np.testing.assert_array_equal(img.image, image_of(name, k, shape))  # raw and png are lossless
+            assert img.image.dtype == np.uint8 and img.image.shape == (*shape, 3)
+        np.testing.assert_allclose(f.cameras["front"].T_world_sensor, sc.T_world_front, atol=1e-12)
+        np.testing.assert_allclose(f.cameras["front"].camera.K, CAMERA.K)
+        left, right = f.tactile["left"], f.tactile["right"]
+        np.testing.assert_allclose(left.T_world_sensor, sc.T_world_ee(left.stamp_ns) @ sc.T_ee_left, atol=1e-12)
+        np.testing.assert_allclose(right.T_world_sensor, sc.T_world_ee(right.stamp_ns) @ sc.T_ee_right, atol=1e-12)
+        np.testing.assert_allclose(left.camera.distortion, TACTILE.distortion)
+        np.testing.assert_array_equal(left.depth, depth_of(k))
+        assert left.depth.dtype == np.float32 and right.depth is None
+        # contact: the latest Bool at or before the frame time (published every 10 ms)
+        last_tick = T0 + ((f.stamp_ns - T0) // (10 * MS)) * 10 * MS
+        assert f.contact is sc.contact(last_tick)
+        assert f.finger_opening_m == pytest.approx(sc.opening(f.stamp_ns), abs=1e-12)
+        np.testing.assert_allclose(f.T_world_object_gt, sc.T_world_obj(f.stamp_ns), atol=1e-12)
+
+
+def test_stamps_are_ordered_and_contact_switches(scene_log):
+    frames, _ = read_frames(scene_log)
+    stamps = [f.stamp_ns for f in frames]
+    assert stamps == sorted(stamps)
+    assert [f.contact for f in frames] == [False] * 5 + [True] * 5
+
+
+def test_short_latency_window_reports_late_tactile_images(scene_log):
+    # Tactile images arrive 120-130 ms after their stamp; with a 10 ms window their frame
+    # has already been emitted (cameras only), so they are reported as late, not misgrouped.
+    frames, reader = read_frames(scene_log, max_latency_ns=10 * MS)
+    assert len(frames) == N_FRAMES
+    assert all(f.tactile == {} and "front" in f.cameras for f in frames[:-1])
+    assert set(frames[-1].tactile) == {"left", "right"}  # the last frame waits for the end of the log
+    late = [r for _, r in reader.skipped if "arrived after its frame was emitted" in r]
+    assert len(late) == 3 * (N_FRAMES - 1)  # left image, left depth, right image
+    assert all(r.startswith("/tactile/") for r in late)
+
+
+def test_time_window_keeps_frames_by_stamp(scene_log):
+    frames, reader = read_frames(scene_log, start_ns=trigger(3) - MS, end_ns=trigger(6))
+    assert [f.stamp_ns for f in frames] == [trigger(k) - MS for k in (3, 4, 5, 6)]
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    # frames inside the window are complete even though their tactile images are logged late
+    assert all(set(f.tactile) == {"left", "right"} for f in frames)
+    assert reader.skipped == []
+
+
+def test_iter_frames_opens_a_path(scene_log):
+    frames = list(iter_frames(scene_log, SENSORS[:1], TOPICS))
+    assert len(frames) == N_FRAMES
+    assert all(set(f.cameras) == {"front"} and f.tactile == {} for f in frames)
+
+
+def test_optional_topics_absent_give_none(scene_log):
+    topics = LogTopics(contact="/no_contact", joint_states=None, ground_truth="/nothing", sync_tolerance_ns=5 * MS)
+    with McapLog(scene_log) as log:
+        f = next(iter(FrameReader(log, SENSORS[:1], topics)))
+    assert f.contact is None and f.finger_opening_m is None and f.T_world_object_gt is None
+
+
+def test_sensor_frame_not_in_tf_names_the_frame(scene_log):
+    bad = SensorTopics("front", "camera", "/cameras/front/image", "/cameras/front/camera_info", frame_id="front_camera")
+    with McapLog(scene_log) as log:
+        with pytest.raises(LogError, match=r"scene\.mcap: frame 'front_camera' is not in the TF tree \(known frames: .*ee"):
+            list(FrameReader(log, [bad], TOPICS))
+
+
+def test_ee_frame_not_in_tf_fails_before_any_frame(scene_log):
+    with McapLog(scene_log) as log:
+        reader = FrameReader(log, SENSORS[:1], LogTopics(ee_frame="tcp"))
+        with pytest.raises(LogError, match=r"frame 'tcp' is not in the TF tree"):
+            next(iter(reader))
+
+
+def test_missing_image_topic_names_topic_and_expected_type(scene_log):
+    with McapLog(scene_log) as log:
+        with pytest.raises(
+            LogError, match=r"scene\.mcap: topic '/cameras/top/image' not found \(expected sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage for camera 'top'\)"
+        ):
+            FrameReader(log, [SensorTopics.default("top")], TOPICS)
+
+
+def test_wrong_topic_type_is_reported(scene_log):
+    wrong = SensorTopics("front", "camera", "/contact", "/cameras/front/camera_info")
+    with McapLog(scene_log) as log:
+        with pytest.raises(LogError, match=r"topic '/contact' has type 'std_msgs/msg/Bool' \(expected sensor_msgs/msg/Image"):
+            FrameReader(log, [wrong], TOPICS)
+
+
+def test_sensor_description_is_validated():
+    with pytest.raises(ValueError, match="modality"):
+        SensorTopics("x", "lidar", "/a", "/b")
+
+
+def test_unknown_image_encoding_in_a_log_names_file_topic_and_encoding(tmp_path):
+    good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
+    with LogWriter(good) as w:
+        w.write_image("/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), T0, "front_optical")
+    with McapLog(good) as log:
+        raw = next(log.messages("/cameras/front/image", decode=False)).msg
+    assert raw.count(b"rgb8\x00") == 1
+    with LogWriter(bad) as w:
+        w.write_tf([("world", "front_optical", np.eye(4))], T0, static=True)
+        w.write_tf([("world", "ee", np.eye(4))], T0)
+        w.write_camera_info("/cameras/front/camera_info", CAMERA, T0, "front_optical")
+        w.write_raw("/cameras/front/image", "sensor_msgs/msg/Image", raw.replace(b"rgb8\x00", b"nv21\x00"), T0)
+    with pytest.raises(
+        LogError,
+        match=r"bad\.mcap: topic '/cameras/front/image': unsupported colour image encoding 'nv21' "
+        r"\(supported: rgb8, bgr8, .*\) \(stamp 1700000000000000000 ns\)",
+    ):
+        list(iter_frames(bad, SENSORS[:1], TOPICS))

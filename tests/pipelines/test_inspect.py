@@ -1,0 +1,117 @@
+"""inspect_log / format_report: topics and rates of a log, and what a config needs but the log lacks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mvtop_cli.errors import LogError
+from mvtop_cli.geometry.camera import PinholeCamera
+from mvtop_cli.io.mcap_writer import LogWriter
+from mvtop_cli.pipelines.inspect import format_report, inspect_log
+
+REAL = Path(__file__).parent / "../../../shared/data/real/rosbag2_mcap"
+T0 = 1_700_000_000_000_000_000
+MS = 1_000_000
+
+
+@pytest.fixture(scope="module")
+def log_path(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("inspect") / "run.mcap"
+    cam = PinholeCamera.from_fov(8, 6, 10.0)
+    with LogWriter(path) as w:
+        w.write_tf([("world", "front_optical", np.eye(4))], T0, static=True)
+        for i in range(51):  # 50 Hz for 1 s
+            t = T0 + i * 20 * MS
+            w.write_tf([("world", "ee", np.eye(4))], t)
+            w.write_bool("/contact", i > 25, t)
+        for i in range(11):  # 10 Hz
+            t = T0 + i * 100 * MS
+            w.write_image("/cameras/front/image", np.zeros((6, 8, 3), np.uint8), t, "front_optical")
+            w.write_camera_info("/cameras/front/camera_info", cam, t, "front_optical")
+    return path
+
+
+REQUIRED = {
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/cameras/front/image": "sensor_msgs/msg/Image",
+    "/cameras/front/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/contact": "std_msgs/msg/Bool",
+}
+
+
+def test_complete_log_passes(log_path):
+    report = inspect_log(log_path, REQUIRED, ["world", "ee", "front_optical"])
+    assert report.ok
+    s = report.summary
+    assert {t.name: t.message_count for t in s.topics} == {
+        "/tf_static": 1, "/tf": 51, "/contact": 51, "/cameras/front/image": 11, "/cameras/front/camera_info": 11,
+    }
+    assert s.topic("/tf").rate_hz == pytest.approx(50.0)
+    assert s.topic("/cameras/front/image").rate_hz == pytest.approx(10.0)
+    assert s.duration_s == pytest.approx(1.0) and s.time_range_ns == (T0, T0 + 1000 * MS)
+    assert report.tf_frames == ("ee", "front_optical", "world")
+    text = format_report(report)
+    assert "OK: every required topic and TF frame is present." in text
+    assert "duration:    1.000 s" in text and "start:       2023-11-14 22:13:20.000000000 UTC" in text
+    lines = text.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("topic "))
+    assert lines[header].split() == ["topic", "type", "count", "rate", "Hz", "span", "s", "check"]
+    tf_row = next(line for line in lines if line.startswith("/tf "))
+    assert tf_row.split() == ["/tf", "tf2_msgs/msg/TFMessage", "51", "50.00", "1.000", "required"]
+    # columns line up: every table row is as wide as its separator line or narrower
+    assert len(lines[header + 1]) >= max(len(line) for line in lines[header + 2 : header + 7])
+
+
+def test_missing_wrong_and_empty_topics_and_frames(log_path):
+    required = dict(REQUIRED)
+    required["/tactile/left/image"] = "sensor_msgs/msg/Image"
+    required["/contact"] = "sensor_msgs/msg/JointState"
+    report = inspect_log(log_path, required, ["world", "ee", "tactile_left_optical"])
+    assert not report.ok
+    assert report.missing_topics == ("/tactile/left/image",)
+    assert report.wrong_types == (("/contact", "sensor_msgs/msg/JointState", "std_msgs/msg/Bool"),)
+    assert report.missing_frames == ("tactile_left_optical",)
+    text = format_report(report)
+    assert "PROBLEMS:" in text
+    assert "  - missing topics: /tactile/left/image" in text
+    assert "  - wrong types: /contact is std_msgs/msg/Bool (expected sensor_msgs/msg/JointState)" in text
+    assert "  - missing TF frames: tactile_left_optical" in text
+    assert any(line.startswith("/tactile/left/image") and line.endswith("MISSING") for line in text.splitlines())
+
+
+def test_without_requirements_tf_is_not_scanned(log_path):
+    report = inspect_log(log_path)
+    assert report.ok and report.tf_frames is None
+    assert "PROBLEMS" not in format_report(report) and "TF frames" not in format_report(report)
+    assert inspect_log(log_path, scan_tf=True).tf_frames == ("ee", "front_optical", "world")
+
+
+def test_real_bag_with_empty_channels():
+    folder = REAL / "rosbag2_py_test_resources_mcap_talker"
+    report = inspect_log(folder, {"/parameter_events": "rcl_interfaces/msg/ParameterEvent", "/topic": "std_msgs/String"})
+    assert report.empty_topics == ("/parameter_events",) and not report.missing_topics and not report.wrong_types
+    text = format_report(report)
+    assert "files:       1 (talker.mcap)" in text and "compression: zstd" in text
+    assert "  - topics without messages: /parameter_events" in text
+    row = next(line for line in text.splitlines() if line.startswith("/parameter_events"))
+    assert row.split()[2:5] == ["0", "-", "-"] and row.endswith("EMPTY")
+
+
+def test_truncated_log_is_flagged_not_rejected(log_path, tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log_path.read_bytes()[: log_path.stat().st_size // 2])
+    report = inspect_log(cut, {"/tf": "tf2_msgs/msg/TFMessage"})
+    assert not report.ok and report.summary.truncated_at is not None
+    text = format_report(report)
+    assert "WARNING:     cut.mcap is truncated at byte" in text and "  - the log is truncated" in text
+
+
+def test_unreadable_log_raises(tmp_path):
+    bad = tmp_path / "x.mcap"
+    bad.write_bytes(b"not mcap at all")
+    with pytest.raises(LogError, match=r"x\.mcap: not an MCAP file"):
+        inspect_log(bad)

@@ -1,0 +1,52 @@
+"""Occluders hide the object where they are nearer to the sensor, and only there."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mvtop_cli.geometry import se3
+from mvtop_cli.render import roi_for_particles
+
+
+def _setup(scene, fast, n=8):
+    rng = np.random.default_rng(21)
+    T = scene.camera_particles(rng, n, 0.45, spread_m=0.002)
+    roi = roi_for_particles(fast.mesh("cube"), T, scene.camera)
+    return T, roi, fast.render_masks("cube", T, scene.camera, roi)
+
+
+def test_wall_in_front_hides_everything(scene, fast):
+    T, roi, _ = _setup(scene, fast)
+    wall = [("wall", se3.make_pose(np.eye(3), [0.0, 0.0, 0.3]))]
+    assert not fast.render_masks("cube", T, scene.camera, roi, occluders=wall).any()
+    assert np.isinf(fast.render_depth("cube", T, scene.camera, roi, occluders=wall)).all()
+
+
+def test_wall_behind_hides_nothing(scene, fast):
+    T, roi, plain = _setup(scene, fast)
+    wall = [("wall", se3.make_pose(np.eye(3), [0.0, 0.0, 0.6]))]
+    np.testing.assert_array_equal(fast.render_masks("cube", T, scene.camera, roi, occluders=wall), plain)
+
+
+def test_half_wall_hides_the_pixels_it_covers(scene, fast):
+    # The wall's edge is the plane x = 0 at z = 0.35 m: it covers image columns u < cx.
+    T, roi, plain = _setup(scene, fast)
+    wall = [("wall", se3.make_pose(np.eye(3), [-0.1, 0.0, 0.35]))]
+    masks = fast.render_masks("cube", T, scene.camera, roi, occluders=wall)
+    roi_cam = roi.camera(scene.camera)
+    hidden = np.arange(roi.shape[1]) < roi_cam.cx  # columns behind the wall
+    np.testing.assert_array_equal(masks[:, :, ~hidden], plain[:, :, ~hidden])
+    assert not masks[:, :, hidden].any()
+    assert plain[:, :, hidden].any()  # the object did reach behind the wall
+
+
+def test_occluders_combine_and_score(scene, fast):
+    T, roi, plain = _setup(scene, fast)
+    left = ("wall", se3.make_pose(np.eye(3), [-0.1, 0.0, 0.35]))
+    right = ("wall", se3.make_pose(np.eye(3), [0.1 + 0.004, 0.0, 0.4]))
+    both = fast.render_masks("cube", T, scene.camera, roi, occluders=[left, right])
+    one = fast.render_masks("cube", T, scene.camera, roi, occluders=[left])
+    assert not (both & ~one).any() and both.sum() < one.sum()
+    observed = both[0]
+    scores = fast.score_masks("cube", T, scene.camera, roi, observed, occluders=[left, right])
+    assert scores[0] == 1.0 and (scores[1:] < 1.0).all()

@@ -1,0 +1,118 @@
+"""The simulator's logs agree with their own ground truth: images, tactile, contact, bytes.
+
+Each check reads the log back through the public reader (TF, CameraInfo, ground truth topic)
+and compares with an independent model: the numba mask renderer for images, python-fcl for
+contact. So a frame convention that disagrees anywhere in the chain fails here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mvtop_cli.config import load_config
+from mvtop_cli.contact.fcl_distance import FclDistance
+from mvtop_cli.geometry import se3
+from mvtop_cli.io.frames import FrameReader
+from mvtop_cli.io.mcap_reader import McapLog
+from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+from mvtop_cli.pipelines.scene_model import OBJECT_ID, SceneModel
+from mvtop_cli.pipelines.simulate import SimulateOptions, simulate, write_scene_config
+from mvtop_cli.render.roi import Roi
+from mvtop_cli.sim.episode import CONTACT_DISTANCE_M, EpisodeOptions
+from mvtop_cli.sim.objects import get_object
+
+MAGENTA = (1.0, 0.0, 1.0)
+
+def _simulate(tmp: Path, name: str, seed: int = 3, frames: int = 12, **kw) -> tuple[Path, Path]:
+    tmp.mkdir(parents=True, exist_ok=True)
+    log = tmp / f"{name}.mcap"
+    opts = SimulateOptions(episode=EpisodeOptions(frames=frames), **kw)
+    simulate(name, seed, log, opts)
+    cfg = write_scene_config(name, tmp / f"{name}.yaml")
+    return log, cfg
+
+@pytest.fixture(scope="module")
+def magenta_cube(tmp_path_factory) -> tuple[Path, Path]:
+    tmp = tmp_path_factory.mktemp("sim")
+    return _simulate(tmp, "cube", object_rgb=MAGENTA, noise_std=0.0, image_format="png", tactile_format="png")
+
+def _frames(log: Path, cfg_path: Path):
+    cfg = load_config(cfg_path)
+    with McapLog(log) as mlog:
+        reader = FrameReader(mlog, sensor_topics(cfg), log_topics(cfg))
+        frames = list(reader)
+        tf = reader.tf
+    return cfg, frames, tf
+
+def _magenta(rgb: np.ndarray) -> np.ndarray:
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (r - g > 40) & (b - g > 40) & (np.abs(r - b) < 40)
+
+def test_camera_images_show_the_object_where_ground_truth_puts_it(magenta_cube):
+    log, cfg_path = magenta_cube
+    cfg, frames, tf = _frames(log, cfg_path)
+    scene = SceneModel(cfg, build_contact=False)
+    ious = []
+    for fr in frames:
+        for name, img in fr.cameras.items():
+            T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
+            occ = scene.occluders(img.T_world_sensor, lambda f: tf.lookup("world", f, img.stamp_ns))
+            rendered = scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, Roi.full(img.camera), occ)[0]
+            seen = _magenta(img.image)
+            if rendered.sum() < 50:  # hidden behind a finger in this view
+                continue
+            ious.append((rendered & seen).sum() / (rendered | seen).sum())
+    assert len(ious) >= len(frames)  # the object is visible in most views
+    assert min(ious) >= 0.95, ious
+
+def test_tactile_depth_and_images_match_the_rendered_indentation(magenta_cube):
+
+    log, cfg_path = magenta_cube
+    cfg, frames, tf = _frames(log, cfg_path)
+    scene = SceneModel(cfg, build_contact=False)
+    gel = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
+    depth_ious, image_ious = [], []
+    for fr in frames:
+        for name, img in fr.tactile.items():
+            T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
+            rendered = scene.renderer.render_masks(
+                OBJECT_ID, T[None], img.camera, Roi.full(img.camera), mode="tactile",
+                gel_distance_m=gel[name], penetration_threshold_m=2e-5,
+            )[0]
+            observed = img.depth > 2e-5
+            assert rendered.sum() > 100  # the pads squeeze the object in every frame
+            depth_ious.append((rendered & observed).sum() / (rendered | observed).sum())
+    assert min(depth_ious) >= 0.97, depth_ious
+    # (the tactile image itself is checked against the depth in tests/masking/test_tactile.py)
+
+def test_contact_flag_is_true_exactly_when_the_object_touches(tmp_path):
+    log, cfg_path = _simulate(tmp_path, "shaft_peg", seed=5, frames=14)
+    cfg, frames, _ = _frames(log, cfg_path)
+    spec = get_object("shaft_peg")
+    env = [p for p in cfg.environment if p.collide and p.frame == "world"]
+    from mvtop_cli.io.meshes import load_mesh
+
+    meshes = [load_mesh(p.mesh) for p in env]
+    poses = np.stack([p.pose.matrix() for p in env])
+    fcl_dist = FclDistance(spec.mesh, meshes, poses)
+    d = fcl_dist.distance(np.stack([f.T_world_object_gt for f in frames]))
+    contact = np.array([f.contact for f in frames])
+    assert contact.any() and not contact.all()
+    np.testing.assert_array_equal(contact, d < CONTACT_DISTANCE_M)
+    # touching means touching, not hovering: contact frames sit within a micrometre
+    assert np.all(d[contact] < 1e-6)
+    # and nothing ever penetrates: the SDF of the environment is never negative
+    scene = SceneModel(cfg)
+    phi = scene.phi(np.stack([f.T_world_object_gt for f in frames]))
+    assert phi.min() > -scene.sdf.env_sdf.spacing_m
+
+def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
+    opts = dict(frames=6, image_format="jpeg", tactile_format="png")
+    a, _ = _simulate(tmp_path / "a", "conn1", seed=11, **opts)
+    b, _ = _simulate(tmp_path / "b", "conn1", seed=11, **opts)
+    c, _ = _simulate(tmp_path / "c", "conn1", seed=12, **opts)
+    assert a.read_bytes() == b.read_bytes()
+    assert a.read_bytes() != c.read_bytes()

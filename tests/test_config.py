@@ -1,0 +1,105 @@
+"""Config loading: validation errors name the file and dotted key; defaults and paths resolve."""
+
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from mvtop_cli.config import dump_config, load_config, parse_config
+from mvtop_cli.errors import ConfigError
+
+BASE = """
+object: {name: cube, mesh: cube.obj, clearance_m: 0.0003}
+environment:
+  - {name: receptacle, mesh: cube.obj, frame: world, pose: {xyz_m: [0, 0, 0.02]}}
+sensors:
+  cameras:
+    - {name: front, image_topic: /cameras/front/image/compressed, info_topic: /cameras/front/camera_info}
+  tactile:
+    - {name: left, image_topic: /tactile/left/image, info_topic: /tactile/left/camera_info,
+       depth_topic: /tactile/left/depth, frame: tactile_left_optical}
+"""
+
+
+@pytest.fixture
+def cfg_dir(tmp_path: Path) -> Path:
+    (tmp_path / "cube.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    return tmp_path
+
+
+def write(cfg_dir: Path, text: str, extra: dict | None = None) -> Path:
+    data = yaml.safe_load(textwrap.dedent(text))
+    for dotted, value in (extra or {}).items():
+        node = data
+        *parents, last = dotted.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[last] = value
+    path = cfg_dir / "c.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_valid_config_resolves_paths_and_defaults(cfg_dir):
+    cfg = load_config(write(cfg_dir, BASE))
+    assert cfg.object.mesh == cfg_dir.resolve() / "cube.obj"
+    assert cfg.filter.num_particles == 1000
+    assert cfg.environment[0].pose.matrix()[2, 3] == pytest.approx(0.02)
+    assert cfg.required_topics()["/cameras/front/image/compressed"] == "sensor_msgs/msg/CompressedImage"
+    assert cfg.required_topics()["/tactile/left/depth"] == "sensor_msgs/msg/Image"
+    assert cfg.required_topics()["/contact"] == "std_msgs/msg/Bool"
+    assert "tactile_left_optical" in cfg.required_frames()
+    # the dump is complete and loads back to the same config
+    dumped = yaml.safe_load(dump_config(cfg))
+    assert dumped["filter"]["temperature"] == cfg.filter.temperature
+    again = parse_config(dumped, cfg_dir / "again.yaml")
+    assert again.object == cfg.object and again.filter == cfg.filter
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ({"filter.num_particle": 10}, "filter.num_particle: unknown key (did you mean 'num_particles'?)"),
+        ({"filter.num_particles": 0}, "filter.num_particles: expected a value >= 1, got 0"),
+        ({"filter.num_particles": 2.5}, "filter.num_particles: expected an integer, got 2.5"),
+        ({"filter.temperature": 0}, "filter.temperature: expected a value > 0.0, got 0.0"),
+        ({"filter.resampling": "sytematic"}, "did you mean 'systematic'?"),
+        ({"contact.softness_m": "small"}, "contact.softness_m: expected a number, got 'small'"),
+        ({"object.units": "cm"}, "object.units: expected one of 'm', 'mm', got 'cm'"),
+        ({"object.mesh": "missing.obj"}, "object.mesh: mesh file not found"),
+        ({"modalities": ["vision", "tactle"]}, "modalities[1]: expected one of 'vision', 'tactile', 'contact', got 'tactle' (did you mean 'tactile'?)"),
+        ({"grasp_prior.pose": {"xyz_m": [0, 0]}}, "grasp_prior.pose.xyz_m: expected a list of 3 numbers, got 2 items"),
+        ({"objcet": {}}, "objcet: unknown key (did you mean 'object'?)"),
+    ],
+)
+def test_bad_values_name_file_and_key(cfg_dir, extra, message):
+    path = write(cfg_dir, BASE, extra)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}: ")
+    assert message in text
+    assert "\n" not in text
+
+
+def test_missing_required_key(cfg_dir):
+    path = write(cfg_dir, "sensors: {cameras: [{name: a, image_topic: /a, info_topic: /b}]}")
+    with pytest.raises(ConfigError, match=r"c\.yaml: object: missing required key"):
+        load_config(path)
+
+
+def test_duplicate_sensor_names(cfg_dir):
+    path = write(cfg_dir, BASE, {"sensors.tactile": [
+        {"name": "front", "image_topic": "/t", "info_topic": "/ti"}]})
+    with pytest.raises(ConfigError, match="sensor names must be unique, 'front' is used twice"):
+        load_config(path)
+
+
+def test_bad_yaml_and_missing_file(cfg_dir):
+    bad = cfg_dir / "bad.yaml"
+    bad.write_text("object: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml: invalid YAML at line \d+"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(cfg_dir / "nope.yaml")
