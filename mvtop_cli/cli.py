@@ -159,7 +159,7 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
             raise MvtopError(f"--object-color: expected three numbers 0-1 such as 1,0,1, got {object_color!r}")
     _check_output_path(out, ".mcap")
-    from .pipelines.simulate import SimulateOptions, simulate
+    from .pipelines.simulate import SimulateOptions, simulate, write_scene_config
     from .sim.episode import EpisodeOptions
 
     get_object(object_name)  # unknown names fail before any work
@@ -225,6 +225,59 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
     click.echo(line)
     for flag, count in summary["flags"].items():
         click.echo(f"mvtop: warning: {flag} in {count} frame(s) (see summary.json)", err=True)
+
+
+@cli.group("benchmark")
+def benchmark_group() -> None:
+    """Measure speed on this machine."""
+
+
+@benchmark_group.command("speed")
+@CONFIG_OPTION
+@click.option("--particles", "particles_list", default="250,1000,4000", show_default=True, metavar="LIST",
+              help="Comma-separated particle counts.")
+@click.option("--repeats", type=click.IntRange(1, 100), default=7, show_default=True, help="Best of this many runs.")
+@click.option("--no-reference", is_flag=True, help="Skip the one-pyrender-call-per-particle reference path.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list of rows for scripts.")
+def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: int, no_reference: bool, as_json: bool) -> None:
+    """Particle x sensor evaluations per second (render + IoU in a region of interest) of the
+    batched renderer, beside one pyrender call per particle, for 2 cameras and 2 tactile sensors
+    looking at the object of --config (default: configs/cube.yaml's cube)."""
+    import json
+    import os
+
+    from .render.benchmark import benchmark_render
+
+    try:
+        counts = [int(v) for v in particles_list.split(",")]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        raise MvtopError(f"--particles: expected a comma-separated list of positive integers, got {particles_list!r}")
+    meshes = None
+    if config_path is not None:
+        from .config import load_config
+        from .io.meshes import load_mesh
+
+        cfg = load_config(config_path)
+        meshes = {cfg.object.name: load_mesh(cfg.object.mesh, cfg.object.units, "object mesh")}
+    else:
+        from .sim.objects import get_object
+
+        meshes = {"cube": get_object("cube").mesh}
+    rows = benchmark_render(counts, meshes=meshes, reference=not no_reference, repeats=repeats)
+    out = [{"particles": r["particles"], "evals_per_s": round(r["evals_per_s"], 1),
+            "reference_evals_per_s": None if r["reference_evals_per_s"] is None else round(r["reference_evals_per_s"], 1),
+            "mesh": r["mesh"], "threads": r["threads"]} for r in rows]
+    if as_json:
+        click.echo(json.dumps(out))
+        return
+    click.echo(f"machine: {os.cpu_count()} cores; numba threads: {out[0]['threads']}; 2 cameras + 2 tactile sensors")
+    click.echo(f"{'mesh':<10} {'particles':>9} {'evals/s':>10} {'pyrender evals/s':>17} {'speed-up':>9}")
+    for r in out:
+        ref = r["reference_evals_per_s"]
+        ratio = f"{r['evals_per_s'] / ref:8.0f}x" if ref else "        -"
+        click.echo(f"{r['mesh']:<10} {r['particles']:>9} {r['evals_per_s']:>10.0f} {ref or float('nan'):>17.0f} {ratio}")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -232,7 +232,7 @@ class Estimator:
         gamma = np.array([self.tactile_cfg[n].weight or 1.0 / max(1, len(tac_names)) for n in tac_names])
         nu = np.array([self.camera_weights[n] or 1.0 / max(1, len(cam_names)) for n in cam_names])
 
-        def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
+        def ious(T_ee_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             T_w = T_world_ee @ T_ee_obj
             iou_t = np.empty((len(T_ee_obj), len(tac_names)))
             iou_v = np.empty((len(T_ee_obj), len(cam_names)))
@@ -250,12 +250,17 @@ class Estimator:
                 iou_v[:, j] = self.scene.renderer.score_masks(
                     OBJECT_ID, T, img.camera, rois[n], crops[n], occluders[n], observed_outside=outside[n]
                 )
+            return iou_t, iou_v
+
+        def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
+            iou_t, iou_v = ious(T_ee_obj)
             score = visuo_tactile_log_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None, f.temperature)
             if contact and self.scene.has_contact_model:
-                phi = self.scene.phi(T_w)
+                phi = self.scene.phi(T_world_ee @ T_ee_obj)
                 score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
             return score
 
+        self.last_log_likelihood, self.last_ious = log_likelihood, ious
         if not tac_names and not cam_names and not contact:
             result = self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
         else:

@@ -111,9 +111,7 @@ def simulate(
     cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
     cam_renderer.set_pose("receptacle", T_world_rec)
     tac_camera = grip.tactile_camera(options.gel_distance_m)
-    tac_renderer = CameraSceneRenderer(
-        {"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height, renderer=cam_renderer.renderer
-    )
+    tac_renderer = CameraSceneRenderer({"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height)
     T_finger_tac = grip.T_finger_tactile_optical(options.gel_distance_m)
     mm_per_px = 1000.0 * options.gel_distance_m / tac_camera.fx
     backgrounds = {side: make_background(tac_camera.height, tac_camera.width, tac_rng) for side in TACTILE_SIDES}
@@ -132,6 +130,7 @@ def simulate(
                     progress(k + 1, len(states))
     finally:
         cam_renderer.close()
+        tac_renderer.close()
     return SimulationSummary(Path(out), len(states), sum(s.contact for s in states), os.path.getsize(out))
 
 

@@ -14,7 +14,6 @@ face is also drawn with reversed winding: double-sided, the truth for any windin
 
 from __future__ import annotations
 
-import os
 from typing import Sequence
 
 import numpy as np
@@ -22,19 +21,14 @@ import numpy as np
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render.base import DEFAULT_ZNEAR_M, Occluder, RendererBase, RenderMode
 from mvtop_cli.render.errors import RenderError
+from mvtop_cli.render.gl import import_pyrender, offscreen_renderer
 from mvtop_cli.render.roi import Roi
 
 _T_OPTICAL_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def _import_pyrender():
-    # EGL renders offscreen without a display; it must be chosen before OpenGL is imported.
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    try:
-        import pyrender
-    except ImportError as err:  # pragma: no cover - pyrender is a dependency
-        raise RenderError(f"the reference renderer needs pyrender (pip install pyrender): {err}") from err
-    return pyrender
+    return import_pyrender()
 
 
 class PyrenderMaskRenderer(RendererBase):
@@ -62,30 +56,11 @@ class PyrenderMaskRenderer(RendererBase):
         self._gl_meshes[mesh_id] = pr.Mesh(primitives=[prim])
 
     def close(self) -> None:
-        """Release the OpenGL context."""
-        if self._renderer is not None:
-            self._renderer.delete()
-            self._renderer = None
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
+        """Forget the OpenGL renderer (the process-wide context stays; see ``render.gl``)."""
+        self._renderer = None
 
     def _offscreen(self, width: int, height: int):
-        pr = self._pyrender
-        if self._renderer is None:
-            try:
-                self._renderer = pr.OffscreenRenderer(width, height)
-            except Exception as err:
-                raise RenderError(
-                    f"cannot create an OpenGL context (PYOPENGL_PLATFORM="
-                    f"{os.environ.get('PYOPENGL_PLATFORM')!r}; EGL needs libEGL and a Mesa driver): {err}"
-                ) from err
-        else:
-            self._renderer.viewport_width = width
-            self._renderer.viewport_height = height
+        self._renderer = offscreen_renderer(width, height)
         return self._renderer
 
     def _depths(

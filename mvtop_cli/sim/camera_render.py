@@ -14,22 +14,9 @@ import numpy as np
 import trimesh
 
 from ..geometry.camera import PinholeCamera
+from ..render.gl import import_pyrender, offscreen_renderer
 
 GL_FROM_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL camera (y up, looks down -z) in optical
-
-
-def import_pyrender():
-    """Import pyrender for offscreen EGL rendering.
-
-    Sets ``PYOPENGL_PLATFORM=egl`` unless the user chose a platform, and restores ``np.infty``
-    (removed in numpy 2, still used by pyrender 0.1.45 when it computes mesh bounds).
-    """
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    if not hasattr(np, "infty"):
-        np.infty = np.inf  # type: ignore[attr-defined]
-    import pyrender
-
-    return pyrender
 
 
 def pyrender_intrinsics(pyrender, camera: PinholeCamera, znear: float = 0.005, zfar: float = 5.0):
@@ -61,31 +48,40 @@ class PhotometricOptions:
 class CameraSceneRenderer:
     """Renders RGB images of a set of named meshes whose poses change per frame."""
 
-    def __init__(self, meshes: dict[str, tuple[trimesh.Trimesh, Material]], width: int, height: int, renderer=None):
-        """``renderer``: a pyrender.OffscreenRenderer to share (one EGL context per process:
-        deleting one of several renderers tears down the others' display); the viewport is set
-        to ``width`` x ``height`` before every render. ``close`` deletes it only if owned."""
+    def __init__(self, meshes: dict[str, tuple[trimesh.Trimesh, Material]], width: int, height: int):
+        """Renders ``meshes`` (name -> mesh, material) at ``width`` x ``height`` through the
+        process's shared offscreen context (``render.gl``)."""
         pr = import_pyrender()
         self._pr = pr
         self.scene = pr.Scene(bg_color=[0.55, 0.58, 0.62, 1.0], ambient_light=[0.25, 0.25, 0.25])
         self.nodes: dict[str, object] = {}
         self.meshes: dict[str, object] = {}
+        # pyrender draws opaque meshes sorted by the distance of their node origin from the
+        # camera, ties in the order of a Python set; so each mesh is recentred on its bounding
+        # box centre (folded back into the node pose) to make the draw order, and with it any
+        # depth-test tie, the same in every run.
+        self._centre: dict[str, np.ndarray] = {}
         for name, (mesh, mat) in meshes.items():
             material = pr.MetallicRoughnessMaterial(
                 baseColorFactor=[*mat.rgb, 1.0], metallicFactor=mat.metallic, roughnessFactor=mat.roughness
             )
+            centre = np.asarray(mesh.bounds, dtype=float).mean(axis=0)
+            self._centre[name] = centre
+            mesh = mesh.copy()
+            mesh.apply_translation(-centre)
             pm = pr.Mesh.from_trimesh(mesh, material=material, smooth=False)
             self.meshes[name] = pm
             self.nodes[name] = self.scene.add(pm, pose=np.eye(4), name=name)
+            self.set_pose(name, np.eye(4))
         self._key = self.scene.add(pr.DirectionalLight(color=np.ones(3), intensity=3.0), pose=np.eye(4))
         self._fill = self.scene.add(pr.PointLight(color=np.ones(3), intensity=1.5), pose=np.eye(4))
         self._cam_node = None
-        self._owns_renderer = renderer is None
-        self.renderer = pr.OffscreenRenderer(width, height) if renderer is None else renderer
         self.width, self.height = width, height
 
     def set_pose(self, name: str, T_world_mesh: np.ndarray) -> None:
-        self.scene.set_pose(self.nodes[name], pose=np.asarray(T_world_mesh, dtype=float))
+        T = np.asarray(T_world_mesh, dtype=float).copy()
+        T[:3, 3] += T[:3, :3] @ self._centre[name]
+        self.scene.set_pose(self.nodes[name], pose=T)
 
     def set_lights(self, T_world_key: np.ndarray, fill_position: np.ndarray, key_intensity: float, fill_intensity: float) -> None:
         self.scene.set_pose(self._key, pose=T_world_key)
@@ -96,7 +92,7 @@ class CameraSceneRenderer:
         self._fill.light.intensity = fill_intensity
 
     def _set_camera(self, camera: PinholeCamera, T_world_camera: np.ndarray) -> None:
-        self.renderer.viewport_width, self.renderer.viewport_height = self.width, self.height
+        self.renderer = offscreen_renderer(self.width, self.height)
         if self._cam_node is not None:
             self.scene.remove_node(self._cam_node)
         cam = pyrender_intrinsics(self._pr, camera)
@@ -122,8 +118,8 @@ class CameraSceneRenderer:
         return depth
 
     def close(self) -> None:
-        if self._owns_renderer:
-            self.renderer.delete()
+        """Drop the scene (the shared context stays for the next renderer)."""
+        self.scene.clear()
 
 
 def visible_mask(scene_depth: np.ndarray, part_depth: np.ndarray, tol_m: float = 2e-4) -> np.ndarray:

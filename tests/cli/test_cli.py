@@ -1,0 +1,120 @@
+"""The command line: help, inspect, simulate; bad input gives one line, exit 2, no output."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[2]
+SAMPLE = REPO / "sample_logs" / "cube.mcap"
+CONFIG = REPO / "configs" / "cube.yaml"
+REAL = REPO.parent / "shared" / "data" / "real" / "rosbag2_mcap"
+
+
+def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run the installed console script as a user would (real exit codes, real streams)."""
+    return subprocess.run([sys.executable, "-m", "mvtop_cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def one_error_line(proc: subprocess.CompletedProcess) -> str:
+    assert proc.returncode == 2, proc.stderr
+    lines = [l for l in proc.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    return lines[0]
+
+
+def test_help_lists_commands_and_options():
+    top = run("--help")
+    assert top.returncode == 0
+    for cmd in ("inspect", "simulate", "estimate"):
+        assert cmd in top.stdout
+    sim = run("simulate", "--help")
+    assert sim.returncode == 0 and "--grasp-translation-mm" in sim.stdout and "--seed" in sim.stdout
+
+
+def test_inspect_sample_log_with_its_config():
+    proc = run("inspect", str(SAMPLE), "--config", str(CONFIG))
+    assert proc.returncode == 0, proc.stderr
+    assert "/tactile/left/depth" in proc.stdout
+    assert "sensor_msgs/msg/CompressedImage" in proc.stdout
+
+
+def test_inspect_real_rosbag2_log_against_a_config_reports_missing_topics():
+    proc = run("inspect", str(REAL / "rosbag2_py_test_resources_mcap_talker" / "talker.mcap"), "--config", str(CONFIG))
+    line = one_error_line(proc)
+    assert "talker.mcap: missing topics" in line and "/cameras/front/image/compressed" in line
+    assert "/topic" in proc.stdout  # the report itself is still printed
+
+
+def test_not_an_mcap_file(tmp_path):
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("hello, not a log\n")
+    line = one_error_line(run("inspect", str(bad)))
+    assert str(bad) in line and "MCAP" in line
+
+
+def test_truncated_log_is_reported(tmp_path):
+    cut = tmp_path / "cut.mcap"
+    data = SAMPLE.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    proc = run("inspect", str(cut))
+    line = one_error_line(proc)
+    assert "cut.mcap" in line and "truncated" in line
+
+
+def test_missing_log_file(tmp_path):
+    line = one_error_line(run("inspect", str(tmp_path / "nope.mcap")))
+    assert "nope.mcap" in line
+
+
+def test_bad_config_key_names_file_and_key(tmp_path):
+    cfg = yaml.safe_load(CONFIG.read_text())
+    cfg["filter"] = {"num_particle": 10}
+    path = tmp_path / "bad.yaml"
+    shutil.copytree(REPO / "configs" / "meshes", tmp_path / "meshes")
+    path.write_text(yaml.safe_dump(cfg))
+    line = one_error_line(run("inspect", str(SAMPLE), "--config", str(path)))
+    assert line == f"mvtop: error: {path}: filter.num_particle: unknown key (did you mean 'num_particles'?)"
+
+
+def test_missing_mesh_file(tmp_path):
+    cfg = yaml.safe_load(CONFIG.read_text())
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))  # meshes/ is not beside this copy
+    line = one_error_line(run("estimate", str(SAMPLE), "--config", str(path), "--out", str(tmp_path / "out")))
+    assert "object.mesh: mesh file not found" in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_simulate_list_and_unknown_object(tmp_path):
+    proc = run("simulate", "--list")
+    assert proc.returncode == 0
+    names = [l.split()[0] for l in proc.stdout.splitlines()]
+    assert names == ["cube", "shaft_peg", "plug", "conn1", "conn2"]
+    line = one_error_line(run("simulate", "--object", "cueb", "--out", str(tmp_path / "x.mcap")))
+    assert "'cueb'" in line and "did you mean 'cube'" in line
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_simulate_bad_options(tmp_path):
+    line = one_error_line(run("simulate", "--object", "cube", "--out", str(tmp_path / "x.mcap"), "--resolution", "640by480"))
+    assert "--resolution" in line
+    line = one_error_line(run("simulate", "--object", "cube", "--out", str(tmp_path / "x.txt")))
+    assert "x.txt" in line and ".mcap" in line
+
+
+def test_simulate_writes_a_log_that_inspect_accepts(tmp_path):
+    out = tmp_path / "plug.mcap"
+    cfg = tmp_path / "plug.yaml"
+    proc = run("simulate", "--object", "plug", "--seed", "4", "--frames", "6", "--out", str(out), "--write-config", str(cfg))
+    assert proc.returncode == 0, proc.stderr
+    assert "6 frames" in proc.stdout
+    check = run("inspect", str(out), "--config", str(cfg))
+    assert check.returncode == 0, check.stderr
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
