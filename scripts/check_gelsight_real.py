@@ -18,7 +18,9 @@ from mvtop_cli.masking.base import MaskContext
 from mvtop_cli.masking.tactile import TactileDifferenceBackend, TactileMaskParams, change_magnitude
 
 MM_PER_PX = 0.1245  # Taxim data set at 120x160 (README beside the data)
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "gelsight_taxim" / "dataPack_small.npz"
+DEFAULT_DATA = (
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "gelsight_taxim" / "dataPack_small.npz"
+)
 
 
 def press_errors(data_path: Path, params: TactileMaskParams = TactileMaskParams()) -> dict[str, np.ndarray]:
@@ -104,9 +106,11 @@ def main(argv: list[str]) -> int:
           f"range [{r.min():+.2f}, {r.max():+.2f}] px")
     area_mm2 = errors["area_px"] * MM_PER_PX**2
     label_mm2 = np.pi * (errors["label_radius_px"] * MM_PER_PX) ** 2
-    print(f"contact area    median {np.median(area_mm2):.2f} mm^2 (labelled circles: median {np.median(label_mm2):.2f} mm^2)")
+    print(f"contact area    median {np.median(area_mm2):.2f} mm^2 "
+          f"(labelled circles: median {np.median(label_mm2):.2f} mm^2)")
     mask_offset = np.nanmedian(errors["offset_px"], axis=0)
-    print(f"mask offset     centroids sit ({mask_offset[0]:+.2f}, {mask_offset[1]:+.2f}) px from the labelled centres (median)")
+    print(f"mask offset     centroids sit ({mask_offset[0]:+.2f}, {mask_offset[1]:+.2f}) px "
+          "from the labelled centres (median)")
     offsets = label_offsets(path)
     median = np.median(offsets, axis=0)
     print(f"label check     rim circles sit ({median[0]:+.2f}, {median[1]:+.2f}) px from the labelled centres "

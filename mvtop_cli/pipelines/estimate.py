@@ -20,7 +20,7 @@ import numpy as np
 from ..config import Config, dump_config
 from ..contact.likelihood import log_contact_likelihood
 from ..errors import EstimationError
-from ..filter.motion import MotionModel, init_from_prior, init_uniform_box
+from ..filter.motion import MotionModel, init_from_prior, init_uniform_box, perturb_about_origin
 from ..filter.particles import ParticleSet, ess_from_log_weights
 from ..filter.resampling import resample
 from ..filter.search import cross_entropy_search
@@ -44,7 +44,13 @@ _CONVERGED_TRANSLATION_M = 5e-4  # belief spread below which cameras switch to p
 _CONVERGED_ROTATION_RAD = np.radians(1.5)
 _PARTICLES_IN_TRACK = 200
 _INIT_FACTOR = 8  # prior samples per particle in the first frame's coarse search
-_FIRST_FRAME_ITERATION_FACTOR = 3  # particles written per frame to track.mcap
+_FIRST_FRAME_ITERATION_FACTOR = 3
+_TACTILE_SHARE = 0.5
+_RESEARCH = True
+_CHECK_SIGMA_TRANSLATION_M = 1e-3
+_CHECK_SIGMA_ROTATION_RAD = float(np.radians(3.0))
+_CHECK_ROUNDS = 4
+_RESEARCH_MARGIN = 3.0  # particles written per frame to track.mcap
 
 
 @dataclass(frozen=True)
@@ -125,22 +131,17 @@ class Estimator:
             return init_uniform_box(T_nom, g.translation_m, np.radians(g.rotation_deg), n, self.rng)
         return init_from_prior(T_nom, g.translation_m, np.radians(g.rotation_deg), n, self.rng)
 
-    def _initial_search(self, log_likelihood) -> ParticleSet:
-        """Coarse search of the grasp prior on the first frame (Algorithm 1's pose
-        candidates): draw ``_INIT_FACTOR`` times more prior samples than particles, weight them
-        by the likelihood tempered to keep an effective sample size of N, and resample N. The
-        frame's refinement then starts from the basin of the likelihood instead of from the
-        whole prior, which a few hundred particles cannot cover at sub-millimetre scale."""
-        n = self.cfg.filter.num_particles
+    def _prior_samples(self, m: int) -> np.ndarray:
         g = self.cfg.grasp_prior
         T_nom = g.pose.matrix()
         if g.distribution == "uniform":
-            big = init_uniform_box(T_nom, g.translation_m, np.radians(g.rotation_deg), n * _INIT_FACTOR, self.rng)
-        else:
-            big = init_from_prior(T_nom, g.translation_m, np.radians(g.rotation_deg), n * _INIT_FACTOR, self.rng)
-        poses, ll = cross_entropy_search(big.poses, log_likelihood, self.rng)
-        if not np.isfinite(ll).any():
-            return self._init_particles()
+            return init_uniform_box(T_nom, g.translation_m, np.radians(g.rotation_deg), m, self.rng).poses
+        return init_from_prior(T_nom, g.translation_m, np.radians(g.rotation_deg), m, self.rng).poses
+
+    def _tempered_resample(self, poses: np.ndarray, ll: np.ndarray) -> ParticleSet:
+        """N particles from a scored search population: weights ``L^b`` with the largest
+        ``b`` that keeps an effective sample size of N, then resampling."""
+        n = self.cfg.filter.num_particles
         lo, hi = 0.0, 1.0
         for _ in range(30):  # largest tempering exponent that keeps ESS >= n
             mid = 0.5 * (lo + hi)
@@ -150,6 +151,68 @@ class Estimator:
                 hi = mid
         weighted = ParticleSet(poses, np.where(np.isfinite(ll), lo * ll, -np.inf))
         return resample(weighted, self.cfg.filter.resampling, self.rng, n_out=n)
+
+    def _initial_search(self, log_likelihood) -> ParticleSet:
+        """Coarse search of the grasp prior on the first frame (Algorithm 1's pose
+        candidates): draw ``_INIT_FACTOR`` times more prior samples than particles, move them
+        towards the likelihood's basin by a cross-entropy search, weight them by the
+        likelihood tempered to keep an effective sample size of N, and resample N. The
+        frame's refinement then starts from the basin of the likelihood instead of from the
+        whole prior, which a few hundred particles cannot cover at sub-millimetre scale."""
+        n = self.cfg.filter.num_particles
+        poses, ll = cross_entropy_search(self._prior_samples(n * _INIT_FACTOR), log_likelihood, self.rng)
+        if not np.isfinite(ll).any():
+            return self._init_particles()
+        return self._tempered_resample(poses, ll)
+
+    def _local_search(self, particles: ParticleSet, log_likelihood) -> tuple[np.ndarray, np.ndarray]:
+        """A short cross-entropy search started from the belief widened by
+        ``_CHECK_SIGMA_*``: the likelihood's best pose near the belief, to check whether the
+        belief sits at the likelihood's peak (a wrong or lagging mode shows as a pose that
+        fits the observation much better than any particle)."""
+        n = len(particles)
+        idx = self.rng.integers(0, n, n)
+        dt = self.rng.standard_normal((n, 3)) * _CHECK_SIGMA_TRANSLATION_M
+        dw = self.rng.standard_normal((n, 3)) * _CHECK_SIGMA_ROTATION_RAD
+        start = perturb_about_origin(particles.poses[idx], dt, dw)
+        return cross_entropy_search(start, log_likelihood, self.rng, rounds=_CHECK_ROUNDS)
+
+    def _filter_frame(self, ps: ParticleSet, first: bool, contact, log_likelihood):
+        """Predict + refine (first frame: global search + refine), then the re-search check:
+        if a search finds a pose whose log-likelihood beats both the estimate and the best
+        particle by ``_RESEARCH_MARGIN`` nats, the belief missed the likelihood's peak (a
+        wrong mode from the first frame, or slip faster than the motion model); the frame is
+        then redone from the searched population and its result kept if its estimate fits
+        better."""
+        f = self.cfg.filter
+        predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
+        iterations = f.refine_iterations * (_FIRST_FRAME_ITERATION_FACTOR if first else 1)
+        result = self.pf.refine(predicted, log_likelihood, iterations, self.pf.refine_shrink)
+        self.research = False
+        if not _RESEARCH:
+            return result
+        if first:  # multi-start: a second, independent global search
+            poses, ll = cross_entropy_search(self._prior_samples(f.num_particles * _INIT_FACTOR), log_likelihood, self.rng)
+        else:
+            poses, ll = self._local_search(result.particles, log_likelihood)
+        if not np.isfinite(ll).any():
+            return result
+        best = poses[int(np.argmax(ll))]
+        cur = result.particles.poses
+        cur_ll, _ = log_likelihood(cur), None
+        ref = cur[int(np.argmax(cur_ll))]
+        cmp = log_likelihood(np.stack([result.estimate, ref, best]))
+        self.last_check = cmp
+        if cmp[2] - max(cmp[0], cmp[1]) <= _RESEARCH_MARGIN:
+            return result
+        self.research = True
+        alt = self.pf.refine(self._tempered_resample(poses, ll), log_likelihood,
+                             f.refine_iterations * _FIRST_FRAME_ITERATION_FACTOR, self.pf.refine_shrink)
+        cmp2 = log_likelihood(np.stack([result.estimate, alt.estimate]))
+        if cmp2[1] > cmp2[0]:
+            alt.diagnostics.setdefault("flags", []).append("re_searched")
+            return alt
+        return result
 
     # --- observed masks ------------------------------------------------------------------
 
@@ -229,8 +292,9 @@ class Estimator:
 
         tac_names = [n for n in frame.tactile if n in crops]
         cam_names = [n for n in frame.cameras if n in crops]
-        gamma = np.array([self.tactile_cfg[n].weight or 1.0 / max(1, len(tac_names)) for n in tac_names])
-        nu = np.array([self.camera_weights[n] or 1.0 / max(1, len(cam_names)) for n in cam_names])
+        t_share = _TACTILE_SHARE if (tac_names and cam_names) else 1.0
+        gamma = np.array([self.tactile_cfg[n].weight or t_share / len(tac_names) for n in tac_names])
+        nu = np.array([self.camera_weights[n] or (1.0 - t_share if tac_names else 1.0) / len(cam_names) for n in cam_names])
 
         def ious(T_ee_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             T_w = T_world_ee @ T_ee_obj
@@ -263,13 +327,11 @@ class Estimator:
         self.last_log_likelihood, self.last_ious = log_likelihood, ious
         if not tac_names and not cam_names and not contact:
             result = self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
+        elif f.refine_iterations > 0:
+            result = self._filter_frame(ps, first, contact, log_likelihood)
         else:
             predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
-            iterations = f.refine_iterations * (_FIRST_FRAME_ITERATION_FACTOR if first else 1)
-            if iterations > 0:
-                result = self.pf.refine(predicted, log_likelihood, iterations, self.pf.refine_shrink)
-            else:
-                result = self.pf.update(predicted, log_likelihood)
+            result = self.pf.update(predicted, log_likelihood)
         self.particles = result.particles
         est = result.estimate
         keep = self.rng.choice(len(result.particles.poses), size=min(_PARTICLES_IN_TRACK, len(result.particles.poses)), replace=False)

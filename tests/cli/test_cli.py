@@ -118,3 +118,21 @@ def test_simulate_writes_a_log_that_inspect_accepts(tmp_path):
     check = run("inspect", str(out), "--config", str(cfg))
     assert check.returncode == 0, check.stderr
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+def test_unknown_image_format_stops_estimate_without_output(tmp_path):
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.io.mcap_writer import LogWriter
+
+    bad = tmp_path / "bad.mcap"
+    with McapLog(SAMPLE) as log, LogWriter(bad) as w:
+        for m in log.messages(decode=False):
+            data = m.msg
+            if m.topic == "/cameras/front/image/compressed":
+                data = data.replace(b"jpeg compressed", b"h264 compressed")
+            w.write_raw(m.topic, m.type, data, m.log_time_ns, m.publish_time_ns)
+    out = tmp_path / "out"
+    line = one_error_line(run("estimate", str(bad), "--config", str(CONFIG), "--out", str(out), "--particles", "50"))
+    assert "bad.mcap" in line and "/cameras/front/image/compressed" in line
+    assert "unsupported compressed image format 'rgb8; h264 compressed bgr8'" in line
+    assert not out.exists() or not any(out.iterdir())
