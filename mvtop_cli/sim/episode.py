@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import fcl
 import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from ..contact.fcl_distance import FclDistance
 from ..geometry import se3
 
 CONTACT_DISTANCE_M = 5e-5  # distance below which the object is reported touching [m]
@@ -63,37 +63,20 @@ class EpisodeState:
         return self.pad_left_y_m - self.pad_right_y_m
 
 
-def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
-    model = fcl.BVHModel()
-    model.beginModel(len(mesh.vertices), len(mesh.faces))
-    model.addSubModel(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int32))
-    model.endModel()
-    return model
-
-
 class Collider:
-    """Distance between the object and fixed environment meshes (world frame), via python-fcl.
+    """Distance [m] between the object and fixed environment meshes (world frame).
 
-    fcl returns the exact distance for separated meshes and 0 for touching or penetrating ones,
-    which is all the episode needs: it only ever moves to poses with distance > 0.
+    python-fcl returns the exact distance for separated meshes and 0 for touching or
+    penetrating ones, which is all the episode needs: it only ever moves to poses with
+    distance > 0.
     """
 
     def __init__(self, object_mesh: trimesh.Trimesh, environment: list[tuple[trimesh.Trimesh, np.ndarray]]):
-        self._obj = fcl.CollisionObject(_bvh(object_mesh), fcl.Transform())
-        self._env = [
-            fcl.CollisionObject(_bvh(m), fcl.Transform(np.asarray(T)[:3, :3], np.asarray(T)[:3, 3]))
-            for m, T in environment
-        ]
+        self._fcl = FclDistance(object_mesh, [m for m, _ in environment], np.stack([T for _, T in environment]))
 
     def distance(self, T_world_object: np.ndarray) -> float:
         """Smallest distance [m] from the object at ``T_world_object`` to the environment."""
-        self._obj.setTransform(fcl.Transform(T_world_object[:3, :3], T_world_object[:3, 3]))
-        best = np.inf
-        for env in self._env:
-            req = fcl.DistanceRequest(enable_nearest_points=False)
-            res = fcl.DistanceResult()
-            best = min(best, max(0.0, fcl.distance(self._obj, env, req, res)))
-        return float(best)
+        return float(max(0.0, self._fcl.distance(T_world_object)))
 
 
 def sample_grasp_offset(options: EpisodeOptions, rng: np.random.Generator) -> np.ndarray:
