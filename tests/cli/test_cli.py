@@ -136,3 +136,21 @@ def test_unknown_image_format_stops_estimate_without_output(tmp_path):
     assert "bad.mcap" in line and "/cameras/front/image/compressed" in line
     assert "unsupported compressed image format 'rgb8; h264 compressed bgr8'" in line
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_estimate_writes_the_track_folder(tmp_path):
+    out = tmp_path / "run"
+    proc = run("estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(out), "--particles", "100",
+               "--max-frames", "3", "--modalities", "vision,tactile")
+    assert proc.returncode == 0, proc.stderr
+    assert "3 frames" in proc.stdout and "error vs ground truth" in proc.stdout
+    assert sorted(p.name for p in out.iterdir()) == ["config.resolved.yaml", "summary.json", "track.csv", "track.mcap"]
+    resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
+    assert resolved["modalities"] == ["vision", "tactile"] and resolved["filter"]["num_particles"] == 100
+    assert len((out / "track.csv").read_text().splitlines()) == 4
+
+
+def test_estimate_rejects_unknown_modality(tmp_path):
+    line = one_error_line(run("estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(tmp_path / "o"),
+                              "--modalities", "vision,smell"))
+    assert "--modalities" in line and "smell" in line
