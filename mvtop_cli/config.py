@@ -160,12 +160,12 @@ class MaskingConfig:
 class FilterConfig:
     """Particle filter parameters (Algorithms 3-4, eq. 1)."""
 
-    num_particles: int = field(default=1000, metadata=_rng(1, 1_000_000))
+    num_particles: int = field(default=500, metadata=_rng(1, 1_000_000))
     temperature: float = field(default=0.003, metadata=_rng(0.0, 10.0, lo_open=True, doc="softmax temperature tau of eq. 1"))
-    sigma_low_translation_m: float = field(default=0.0002, metadata=_rng(0.0, 0.1))
-    sigma_low_rotation_deg: float = field(default=0.2, metadata=_rng(0.0, 180.0))
-    sigma_high_translation_m: float = field(default=0.0005, metadata=_rng(0.0, 0.1))
-    sigma_high_rotation_deg: float = field(default=0.5, metadata=_rng(0.0, 180.0))
+    sigma_low_translation_m: float = field(default=0.0001, metadata=_rng(0.0, 0.1))
+    sigma_low_rotation_deg: float = field(default=0.1, metadata=_rng(0.0, 180.0))
+    sigma_high_translation_m: float = field(default=0.0001, metadata=_rng(0.0, 0.1))
+    sigma_high_rotation_deg: float = field(default=0.25, metadata=_rng(0.0, 180.0))
     resampling: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     ess_threshold: float = field(default=0.5, metadata=_rng(0.0, 1.0))
     refine_iterations: int = field(default=8, metadata=_rng(0, 1000))

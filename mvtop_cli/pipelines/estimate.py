@@ -47,10 +47,11 @@ _INIT_FACTOR = 8  # prior samples per particle in the first frame's coarse searc
 _FIRST_FRAME_ITERATION_FACTOR = 3
 _TACTILE_SHARE = 0.5
 _RESEARCH = True
+_PROMPT_MODE = False
 _CHECK_SIGMA_TRANSLATION_M = 1e-3
 _CHECK_SIGMA_ROTATION_RAD = float(np.radians(3.0))
 _CHECK_ROUNDS = 4
-_RESEARCH_MARGIN = 3.0  # particles written per frame to track.mcap
+_RESEARCH_MARGIN = 10.0  # particles written per frame to track.mcap
 
 
 @dataclass(frozen=True)
@@ -266,7 +267,7 @@ class Estimator:
         f = self.cfg.filter
         T_world_ee = frame.T_world_ee
         spread = ps.spread()
-        converged = (not first) and spread.translation_rms_m < _CONVERGED_TRANSLATION_M and spread.rotation_rms_rad < _CONVERGED_ROTATION_RAD
+        converged = _PROMPT_MODE and (not first) and spread.translation_rms_m < _CONVERGED_TRANSLATION_M and spread.rotation_rms_rad < _CONVERGED_ROTATION_RAD
 
         # ROIs and occluders from the predicted belief (fixed for the frame).
         occluders, rois, observed, cams = {}, {}, {}, {}

@@ -22,7 +22,7 @@ from mvtop_cli.pipelines.scene_model import OBJECT_ID, SceneModel
 from mvtop_cli.pipelines.simulate import SimulateOptions, simulate, write_scene_config
 from mvtop_cli.render.roi import Roi
 from mvtop_cli.sim.episode import CONTACT_DISTANCE_M, EpisodeOptions
-from mvtop_cli.sim.objects import get_object
+from mvtop_cli.sim.objects import get_object, list_objects
 
 MAGENTA = (1.0, 0.0, 1.0)
 
@@ -48,25 +48,37 @@ def _frames(log: Path, cfg_path: Path):
     return cfg, frames, tf
 
 def _magenta(rgb: np.ndarray) -> np.ndarray:
-    r, g, b = (rgb[..., i].astype(int) for i in range(3))
-    return (r - g > 40) & (b - g > 40) & (np.abs(r - b) < 40)
+    """Pixels at least about half covered by the magenta object. The test is on chroma, not
+    brightness, so lit and shaded faces count alike: G small against min(R, B). An edge pixel
+    mixed half and half with the table or board falls near the 0.5 threshold, matching the
+    renderer's pixel-centre sampling."""
+    r, g, b = (rgb[..., i].astype(float) for i in range(3))
+    lo = np.minimum(r, b)
+    return (lo > 20) & ((lo - g) > 0.5 * lo) & (np.abs(r - b) < 0.35 * np.maximum(r, b))
 
-def test_camera_images_show_the_object_where_ground_truth_puts_it(magenta_cube):
-    log, cfg_path = magenta_cube
+
+@pytest.mark.parametrize("name", list_objects())
+def test_camera_images_show_the_object_where_ground_truth_puts_it(tmp_path, name):
+    log, cfg_path = _simulate(tmp_path, name, object_rgb=MAGENTA, noise_std=0.0, image_format="png", tactile_format="png")
     cfg, frames, tf = _frames(log, cfg_path)
     scene = SceneModel(cfg, build_contact=False)
-    ious = []
+    inter = union = 0
     for fr in frames:
-        for name, img in fr.cameras.items():
+        for cam, img in fr.cameras.items():
             T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
             occ = scene.occluders(img.T_world_sensor, lambda f: tf.lookup("world", f, img.stamp_ns))
             rendered = scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, Roi.full(img.camera), occ)[0]
             seen = _magenta(img.image)
-            if rendered.sum() < 50:  # hidden behind a finger in this view
-                continue
-            ious.append((rendered & seen).sum() / (rendered | seen).sum())
-    assert len(ious) >= len(frames)  # the object is visible in most views
-    assert min(ious) >= 0.95, ious
+            i, u = (rendered & seen).sum(), (rendered | seen).sum()
+            inter, union = inter + i, union + u
+            # where the object shows a real silhouette (not a sliver between the fingers) each
+            # view agrees on its own; below ~1000 px the one-pixel boundary band weighs more
+            if rendered.sum() >= 1000:
+                assert i / u >= 0.95, (fr.index, cam, i / u)
+            elif rendered.sum() >= 200:
+                assert i / u >= 0.9, (fr.index, cam, i / u)
+    assert inter / union >= 0.95
+
 
 def test_tactile_depth_and_images_match_the_rendered_indentation(magenta_cube):
 
