@@ -38,6 +38,8 @@ from mvtop_cli.errors import ConfigError
 _BUILTIN_BACKENDS: dict[str, str] = {
     "difference": "mvtop_cli.masking.tactile:TactileDifferenceBackend",
     "classical": "mvtop_cli.masking.classical:ClassicalCameraBackend",
+    "sam_onnx": "mvtop_cli.masking.onnx_sam:SamOnnxBackend",
+    "instance_onnx": "mvtop_cli.masking.onnx_instance:InstanceOnnxBackend",
 }
 
 

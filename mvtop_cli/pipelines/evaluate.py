@@ -1,0 +1,568 @@
+"""``mvtop eval``: score an estimate output folder against ground truth and write a report.
+
+The truth is the log's ground-truth topic (``geometry_msgs/PoseStamped`` in the world
+frame, interpolated at each track stamp) or a file holding one world pose, the nominal
+inserted pose at the final frame. Definitions of every number: docs/metrics.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..config import Config, load_config
+from ..errors import ConfigError, LogError, MvtopError, TrackError
+from ..eval import metrics as M
+from ..eval import report as R
+from ..geometry import se3
+from ..io.atomic import atomic_output
+
+REPORT_SCHEMA = "mvtop.eval/1"
+TRACK_COLUMNS = (
+    "frame", "stamp_ns", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
+    "ee_x_m", "ee_y_m", "ee_z_m", "ee_qx", "ee_qy", "ee_qz", "ee_qw",
+    "std_translation_m", "std_rotation_deg", "ess",
+)
+NEES_PROBABILITY = 0.95
+# Added to covariance diagonals before inverting: (1 um)^2 and (1 urad)^2. Far below any
+# spread a particle filter reports, it only keeps a collapsed set (zero variance) from
+# dividing by zero: such a set gets a huge, finite NEES, which is what it deserves.
+COVARIANCE_FLOOR = np.array([1e-12] * 3 + [1e-12] * 3)
+SURFACE_SAMPLES = 1000  # ADD / ADD-S points; ~1 mm spacing on a connector, < 1 % noise in the mean
+SAMPLE_SEED = 0
+BOP_SCENE_ID = 0
+BOP_OBJ_ID = 1
+GT_FILE_KEYS = ("translation_m", "quaternion_xyzw")
+
+
+# --- inputs ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Track:
+    """A pose track read from an estimate folder; arrays have one entry per row of track.csv.
+
+    ``T_world_object`` and ``T_ee_object`` (N, 4, 4); ``std_*`` the per-frame spreads
+    (``sqrt(trace/3)`` of the covariance blocks, [m] and [rad]); ``final_covariance_ee``
+    (6, 6) the last frame's full covariance from summary.json.
+    """
+
+    path: Path
+    frames: np.ndarray
+    stamps_ns: np.ndarray
+    T_world_object: np.ndarray
+    T_ee_object: np.ndarray
+    std_translation_m: np.ndarray
+    std_rotation_rad: np.ndarray
+    ess: np.ndarray
+    final_covariance_ee: np.ndarray
+    summary: dict
+
+    @property
+    def T_world_ee(self) -> np.ndarray:
+        """(N, 4, 4) end-effector poses implied by the two object poses of each row."""
+        return self.T_world_object @ se3.invert(self.T_ee_object)
+
+
+def _number(value: str, path: Path, line: int, column: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TrackError(f"{path}: line {line}: column {column!r}: expected a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise TrackError(f"{path}: line {line}: column {column!r}: expected a finite number, got {value!r}")
+    return v
+
+
+def _integer(value: str, path: Path, line: int, column: str) -> int:
+    try:
+        return int(value.strip())
+    except (AttributeError, ValueError):
+        raise TrackError(f"{path}: line {line}: column {column!r}: expected an integer, got {value!r}") from None
+
+
+def read_track(track_dir: Path) -> Track:
+    """Read track.csv and summary.json of an ``mvtop estimate`` output folder; TrackError
+    naming the file and what was expected on anything missing or malformed."""
+    track_dir = Path(track_dir)
+    if not track_dir.is_dir():
+        raise TrackError(f"{track_dir}: track folder not found (expected the output folder of mvtop estimate)")
+    csv_path = track_dir / "track.csv"
+    if not csv_path.is_file():
+        raise TrackError(f"{csv_path}: file not found (expected the pose track written by mvtop estimate)")
+    try:
+        with open(csv_path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise TrackError(f"{csv_path}: cannot read the pose track ({err})") from None
+    if not rows:
+        raise TrackError(f"{csv_path}: file is empty (expected a header line and one line per frame)")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in TRACK_COLUMNS if c not in header]
+    if missing:
+        raise TrackError(f"{csv_path}: missing column(s) {', '.join(missing)} (expected the columns of mvtop estimate's track.csv)")
+    body = [(i + 2, r) for i, r in enumerate(rows[1:]) if any(cell.strip() for cell in r)]
+    if not body:
+        raise TrackError(f"{csv_path}: no frames (expected one line per frame after the header)")
+    col = {c: header.index(c) for c in TRACK_COLUMNS}
+    data = np.empty((len(body), len(TRACK_COLUMNS)))
+    for k, (line, r) in enumerate(body):
+        if len(r) < len(header):
+            raise TrackError(f"{csv_path}: line {line}: {len(r)} fields (expected {len(header)} as in the header)")
+        for j, c in enumerate(TRACK_COLUMNS):
+            data[k, j] = _number(r[col[c]], csv_path, line, c)
+    frames = np.array([_integer(r[col["frame"]], csv_path, line, "frame") for line, r in body], dtype=np.int64)
+    stamps = np.array([_integer(r[col["stamp_ns"]], csv_path, line, "stamp_ns") for line, r in body], dtype=np.int64)
+    d = {c: data[:, j] for j, c in enumerate(TRACK_COLUMNS)}
+    if np.any(np.diff(stamps) < 0):
+        line = body[int(np.argmax(np.diff(stamps) < 0)) + 1][0]
+        raise TrackError(f"{csv_path}: line {line}: stamp_ns goes back in time (expected frames in time order)")
+    q = np.stack([d["qx"], d["qy"], d["qz"], d["qw"]], axis=1)
+    qe = np.stack([d["ee_qx"], d["ee_qy"], d["ee_qz"], d["ee_qw"]], axis=1)
+    for name, quat in (("qx..qw", q), ("ee_qx..ee_qw", qe)):
+        norms = np.linalg.norm(quat, axis=1)
+        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+        if len(bad):
+            raise TrackError(
+                f"{csv_path}: line {body[bad[0]][0]}: quaternion {name} has norm {norms[bad[0]]:.6g} (expected a unit quaternion)"
+            )
+    T_world = se3.from_quat_xyzw(q / np.linalg.norm(q, axis=1, keepdims=True), np.stack([d["x_m"], d["y_m"], d["z_m"]], axis=1))
+    T_ee = se3.from_quat_xyzw(qe / np.linalg.norm(qe, axis=1, keepdims=True), np.stack([d["ee_x_m"], d["ee_y_m"], d["ee_z_m"]], axis=1))
+    summary = _read_summary(track_dir / "summary.json", int(stamps[-1]))
+    return Track(
+        path=track_dir, frames=frames, stamps_ns=stamps, T_world_object=T_world, T_ee_object=T_ee,
+        std_translation_m=d["std_translation_m"], std_rotation_rad=np.radians(d["std_rotation_deg"]), ess=d["ess"],
+        final_covariance_ee=summary["_covariance"], summary={k: v for k, v in summary.items() if k != "_covariance"},
+    )
+
+
+def _read_summary(path: Path, last_stamp_ns: int) -> dict:
+    if not path.is_file():
+        raise TrackError(f"{path}: file not found (expected the summary.json written by mvtop estimate)")
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise TrackError(f"{path}: not valid JSON ({err})") from None
+    final = summary.get("final") if isinstance(summary, dict) else None
+    if not isinstance(final, dict) or "covariance_ee" not in final:
+        raise TrackError(f"{path}: final.covariance_ee: missing (expected the 6x6 covariance of the final pose)")
+    try:
+        cov = np.asarray(final["covariance_ee"], dtype=np.float64)
+    except (TypeError, ValueError):
+        cov = np.zeros(0)
+    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+        raise TrackError(f"{path}: final.covariance_ee: expected a 6x6 matrix of finite numbers, got shape {cov.shape}")
+    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-15) or np.min(np.linalg.eigvalsh((cov + cov.T) / 2)) < -1e-12:
+        raise TrackError(f"{path}: final.covariance_ee: expected a symmetric positive semi-definite matrix")
+    stamp = final.get("stamp_ns")
+    if stamp is not None and int(stamp) != last_stamp_ns:
+        raise TrackError(
+            f"{path}: final.stamp_ns is {stamp} but the last frame of track.csv has stamp_ns {last_stamp_ns} "
+            "(expected the summary of the same run)"
+        )
+    return {**summary, "_covariance": (cov + cov.T) / 2}
+
+
+def read_gt_file(path: Path) -> np.ndarray:
+    """One world pose (4, 4) from a YAML or JSON file ``{translation_m: [x, y, z],
+    quaternion_xyzw: [x, y, z, w]}``; ConfigError naming the file and key otherwise."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: ground-truth file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: cannot read ground-truth file ({err})") from None
+    try:
+        data = yaml.safe_load(text)  # JSON is YAML
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: invalid YAML/JSON ({str(err).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping with keys {', '.join(GT_FILE_KEYS)}")
+    import difflib
+
+    for k in data:
+        if k not in GT_FILE_KEYS:
+            hint = difflib.get_close_matches(str(k), GT_FILE_KEYS, n=1)
+            extra = f" (did you mean {hint[0]!r}?)" if hint else f" (expected {', '.join(GT_FILE_KEYS)})"
+            raise ConfigError(f"{path}: {k}: unknown key{extra}")
+    values = {}
+    for key, n in zip(GT_FILE_KEYS, (3, 4)):
+        v = data.get(key)
+        ok = isinstance(v, list) and len(v) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        if not ok or not all(math.isfinite(x) for x in v):
+            raise ConfigError(f"{path}: {key}: expected a list of {n} numbers, got {v!r}")
+        values[key] = np.asarray(v, dtype=np.float64)
+    q = values["quaternion_xyzw"]
+    if abs(np.linalg.norm(q) - 1.0) > 1e-3:
+        raise ConfigError(f"{path}: quaternion_xyzw: expected a unit quaternion, got norm {np.linalg.norm(q):.6g}")
+    return se3.from_quat_xyzw(q / np.linalg.norm(q), values["translation_m"])
+
+
+def ground_truth_from_log(log_path: Path, topic: str | None, world_frame: str, stamps_ns: np.ndarray, tolerance_ns: int) -> np.ndarray:
+    """Ground-truth ``T_world_object`` (N, 4, 4) at ``stamps_ns``, interpolated between the
+    log's PoseStamped messages on ``topic``; NaN where the messages do not cover a stamp
+    (within ``tolerance_ns``). LogError if the log has no ground truth."""
+    from ..io import ros2_msgs as rm
+    from ..io.frames import header_stamp_ns
+    from ..io.mcap_reader import McapLog
+    from ..io.tf_buffer import PoseSeries
+
+    hint = "pass --gt FILE with the nominal final world pose to evaluate without it"
+    with McapLog(log_path) as log:
+        summary = log.summary()
+        if topic is None or not summary.has_topic(topic):
+            raise LogError(
+                f"{log_path}: no ground truth: topic {topic!r} not found (expected geometry_msgs/msg/PoseStamped "
+                f"in {world_frame!r}); {hint}"
+            )
+        info = summary.topic(topic)
+        if rm.normalize_type(info.type) != rm.normalize_type(rm.POSE_STAMPED):
+            raise LogError(f"{log_path}: topic {topic!r} has type {info.type!r} (expected {rm.POSE_STAMPED})")
+        t, v = [], []
+        for m in log.messages(topic):
+            frame = str(m.msg.header.frame_id).lstrip("/")
+            if frame != world_frame:
+                raise LogError(
+                    f"{log_path}: ground truth on {topic!r} at log time {m.log_time_ns} ns is in frame {frame!r} "
+                    f"(expected {world_frame!r})"
+                )
+            p, q = m.msg.pose.position, m.msg.pose.orientation
+            t.append(header_stamp_ns(m.msg, m.log_time_ns))
+            v.append([p.x, p.y, p.z, q.x, q.y, q.z, q.w])
+    if not t:
+        raise LogError(f"{log_path}: no ground truth: topic {topic!r} has no messages; {hint}")
+    v = np.asarray(v, dtype=np.float64)
+    series = PoseSeries(np.asarray(t, dtype=np.int64), v[:, :3], v[:, 3:] / np.linalg.norm(v[:, 3:], axis=1, keepdims=True))
+    out = np.full((len(stamps_ns), 4, 4), np.nan)
+    for i, s in enumerate(stamps_ns):
+        if series.covers(int(s), tolerance_ns):
+            out[i] = series.at(int(s))
+    return out
+
+
+# --- the object -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ObjectModel:
+    """What the metrics need of the object, in its own frame [m].
+
+    ``vertices`` the convex-hull vertices (exact for MSSD's maximum); ``samples`` points
+    spread uniformly over the surface (ADD, ADD-S) and ``sample_targets`` the same moved by
+    every symmetry (ADD-S targets); ``corners`` the bounding box (8, 3); ``insertion_corners``
+    the bounding box of the part within ``insertion_depth_m`` of the leading face;
+    ``group`` the symmetry group (m, 4, 4), identity first.
+    """
+
+    name: str
+    vertices: np.ndarray
+    samples: np.ndarray
+    sample_targets: np.ndarray
+    corners: np.ndarray
+    insertion_corners: np.ndarray
+    group: np.ndarray
+    clearance_m: float
+    insertion_depth_m: float
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points (n, 3) uniformly distributed over a triangle mesh's area."""
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    idx = rng.choice(len(tri), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    t = tri[idx]
+    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
+
+
+def object_model(cfg: Config) -> ObjectModel:
+    """Load the object's mesh and precompute its point sets and symmetry group."""
+    from ..io.meshes import load_mesh
+
+    obj = cfg.object
+    mesh = load_mesh(obj.mesh, obj.units, what="object mesh")
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    try:
+        hull = np.asarray(mesh.convex_hull.vertices, dtype=np.float64)
+    except Exception:  # qhull fails on flat meshes; all vertices are exact, just slower
+        hull = V
+    syms = np.stack([s.matrix() for s in obj.symmetries]) if obj.symmetries else None
+    try:
+        group = M.symmetry_group(syms, tol=1e-6)
+    except ValueError as err:
+        raise ConfigError(f"{cfg.source}: object.symmetries: {err}") from None
+    samples = sample_surface(V, mesh.faces, SURFACE_SAMPLES, np.random.default_rng(SAMPLE_SEED))
+    targets = se3.transform_points(group, samples).reshape(-1, 3)
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    # The leading face is the object's lowest z (frames.md: +z points away from the
+    # receptacle); a zero depth still checks that face.
+    z_cut = lo[2] + max(obj.insertion_depth_m, 1e-9)
+    ilo, ihi = M.clipped_bounds(V, mesh.edges_unique, min(z_cut, hi[2]))
+    return ObjectModel(
+        name=obj.name, vertices=hull, samples=samples, sample_targets=targets, corners=M.box_corners(lo, hi),
+        insertion_corners=M.box_corners(ilo, ihi), group=group, clearance_m=obj.clearance_m,
+        insertion_depth_m=obj.insertion_depth_m,
+    )
+
+
+# --- scoring ----------------------------------------------------------------------------------------
+
+
+def score_poses(
+    model: ObjectModel,
+    T_est: np.ndarray,
+    T_gt: np.ndarray,
+    T_ee_est: np.ndarray | None = None,
+    T_world_ee: np.ndarray | None = None,
+    covariance_ee: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Every metric for poses (N, 4, 4) (world frame), SI units, one array (N,) each.
+
+    With ``T_ee_est``, ``T_world_ee`` (N, 4, 4) and ``covariance_ee`` (N, 6, 6), also the
+    NEES of the truth under the estimate's covariance, at the symmetric equivalent closest
+    to the truth.
+    """
+    G = model.group
+    sym = len(G) > 1
+    k = M.closest_symmetry(T_est, T_gt, model.vertices, G)
+    T_est_sym = T_est @ G[k]
+    out = {
+        "translation_error_m": M.translation_error(T_est_sym, T_gt),
+        "rotation_error_rad": M.rotation_error(T_est_sym, T_gt),
+        "translation_error_nosym_m": M.translation_error(T_est, T_gt),
+        "rotation_error_nosym_rad": M.rotation_error(T_est, T_gt),
+        "pose_error_m": M.pose_error_bbox(T_est, T_gt, model.corners, G),
+        "pose_error_nosym_m": M.pose_error_bbox(T_est, T_gt, model.corners),
+        "add_m": M.add(T_est, T_gt, model.samples),
+        "add_sym_m": M.add(T_est, T_gt, model.samples, G),
+        "add_s_m": M.add_s(T_est, T_gt, model.samples, model.sample_targets),
+        "mssd_m": M.mssd(T_est, T_gt, model.vertices, G),
+        "insertion_error_m": M.lateral_displacement(T_est, T_gt, model.insertion_corners, (0, 0, 1), G),
+        "symmetry_index": k,
+    }
+    out["add_or_add_s_m"] = out["add_s_m"] if sym else out["add_m"]
+    out["insertable"] = out["insertion_error_m"] <= model.clearance_m
+    if covariance_ee is not None:
+        T_ee_gt = se3.invert(T_world_ee) @ T_gt
+        e = M.tangent_error(T_ee_est @ G[k], T_ee_gt)
+        P = M.shift_covariance(covariance_ee, T_ee_est, G[k]) + np.diag(COVARIANCE_FLOOR)
+        out["nees"] = M.nees(e, P)
+    return out
+
+
+def _stats(values: np.ndarray) -> dict[str, float | None]:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return {"median": None, "p95": None, "mean": None, "max": None}
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "mean": float(v.mean()), "max": float(v.max())}
+
+
+# Report keys: (name in the report, key in score_poses' output, factor from SI)
+_METRICS = (
+    ("translation_error_mm", "translation_error_m", 1e3),
+    ("rotation_error_deg", "rotation_error_rad", 180.0 / math.pi),
+    ("translation_error_nosym_mm", "translation_error_nosym_m", 1e3),
+    ("rotation_error_nosym_deg", "rotation_error_nosym_rad", 180.0 / math.pi),
+    ("pose_error_mm", "pose_error_m", 1e3),
+    ("pose_error_nosym_mm", "pose_error_nosym_m", 1e3),
+    ("add_mm", "add_m", 1e3),
+    ("add_sym_mm", "add_sym_m", 1e3),
+    ("add_s_mm", "add_s_m", 1e3),
+    ("add_or_add_s_mm", "add_or_add_s_m", 1e3),
+    ("mssd_mm", "mssd_m", 1e3),
+    ("insertion_error_mm", "insertion_error_m", 1e3),
+)
+METRIC_NAMES = tuple(m[0] for m in _METRICS)
+
+
+def _row(scores: dict[str, np.ndarray], i: int) -> dict[str, Any]:
+    row: dict[str, Any] = {name: float(scores[key][i] * f) for name, key, f in _METRICS}
+    row["insertable"] = bool(scores["insertable"][i])
+    row["symmetry_index"] = int(scores["symmetry_index"][i])
+    return row
+
+
+def _nees_block(value: float, bound: float) -> dict[str, Any]:
+    return {"nees": float(value), "nees_bound": bound, "nees_within_bound": bool(value <= bound)}
+
+
+def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None) -> dict:
+    """Score the track in ``track_dir`` against the ground truth of ``log`` (or the final
+    pose in ``gt_file``, which wins when both are given) and write report.json,
+    report.md, report.html and estimates_bop.csv into ``out_dir``; returns the report.
+
+    ``config`` defaults to ``track_dir/config.resolved.yaml``.
+    """
+    track_dir = Path(track_dir)
+    track = read_track(track_dir)
+    if config is None:
+        cfg_path = track_dir / "config.resolved.yaml"
+        if not cfg_path.is_file():
+            raise TrackError(f"{cfg_path}: file not found (expected the resolved config written by mvtop estimate)")
+        config = load_config(cfg_path)
+    model = object_model(config)
+    n = len(track.stamps_ns)
+
+    if gt_file is not None:
+        T_gt = np.full((n, 4, 4), np.nan)
+        T_gt[-1] = read_gt_file(Path(gt_file))
+        gt_info = {"source": "file", "file": str(gt_file), "frames": "final"}
+    elif log is not None:
+        topic = config.topics.ground_truth
+        tol = int(round(config.sync_tolerance_s * 1e9))
+        T_gt = ground_truth_from_log(Path(log), topic, config.frames.world, track.stamps_ns, tol)
+        gt_info = {"source": "log", "log": str(log), "topic": topic, "frames": "all", "interpolated": True}
+        if np.isnan(T_gt[-1]).any():
+            raise LogError(
+                f"{log}: ground truth on {topic!r} does not cover the final frame (stamp {int(track.stamps_ns[-1])} ns, "
+                f"tolerance {tol} ns); expected the log the track was estimated from"
+            )
+    else:
+        raise MvtopError("no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose")
+
+    has = ~np.isnan(T_gt).any(axis=(1, 2))
+    idx = np.flatnonzero(has)
+    T_world_ee = track.T_world_ee
+    diag = np.zeros((n, 6, 6))
+    diag[:, [0, 1, 2], [0, 1, 2]] = track.std_translation_m[:, None] ** 2
+    diag[:, [3, 4, 5], [3, 4, 5]] = track.std_rotation_rad[:, None] ** 2
+    scores = score_poses(model, track.T_world_object[idx], T_gt[idx], track.T_ee_object[idx], T_world_ee[idx], diag[idx])
+    final_scores = score_poses(
+        model, track.T_world_object[-1:], T_gt[-1:], track.T_ee_object[-1:], T_world_ee[-1:], track.final_covariance_ee[None]
+    )
+    bound = M.chi2_bound(6, NEES_PROBABILITY)
+    t0 = int(track.stamps_ns[0])
+
+    per_frame = []
+    for j, i in enumerate(idx):
+        row = {"frame": int(track.frames[i]), "stamp_ns": int(track.stamps_ns[i]), "time_s": (int(track.stamps_ns[i]) - t0) * 1e-9}
+        row.update(_row(scores, j))
+        row.update({
+            "std_translation_mm": float(track.std_translation_m[i] * 1e3),
+            "std_rotation_deg": float(np.degrees(track.std_rotation_rad[i])),
+            **_nees_block(scores["nees"][j], bound),
+        })
+        per_frame.append(row)
+
+    final = {"frame": int(track.frames[-1]), "stamp_ns": int(track.stamps_ns[-1]), "time_s": (int(track.stamps_ns[-1]) - t0) * 1e-9}
+    final.update(_row(final_scores, 0))
+    final["clearance_mm"] = model.clearance_m * 1e3
+    final.update(_nees_block(final_scores["nees"][0], bound))
+    final["nees_covariance"] = "summary.json final.covariance_ee (full 6x6)"
+    final["T_world_object_estimate"] = _pose_dict(track.T_world_object[-1])
+    final["T_world_object_truth"] = _pose_dict(T_gt[-1])
+
+    frames_block: dict[str, Any] = {
+        "count": n,
+        "with_truth": int(len(idx)),
+        **{name: _stats([r[name] for r in per_frame]) for name in METRIC_NAMES},
+        "insertable_fraction": float(np.mean([r["insertable"] for r in per_frame])),
+        "nees": _stats(scores["nees"]),
+        "nees_within_bound_fraction": float(np.mean(scores["nees"] <= bound)),
+        "nees_covariance": "diagonal approximation from track.csv's std_translation_m and std_rotation_deg "
+                           "(per-frame full covariances are not in track.csv)",
+    }
+    report = {
+        "schema": REPORT_SCHEMA,
+        "track_dir": str(track_dir),
+        "object": model.name,
+        "symmetries": int(len(model.group) - 1),
+        "clearance_mm": model.clearance_m * 1e3,
+        "insertion_depth_mm": model.insertion_depth_m * 1e3,
+        "ground_truth": gt_info,
+        "estimate": {k: track.summary.get(k) for k in ("log", "modalities", "particles", "seed", "frames_processed", "time_per_frame_s")},
+        "final": final,
+        "frames": frames_block,
+        "per_frame": per_frame,
+        "files": {"bop_csv": "estimates_bop.csv", "markdown": "report.md", "html": "report.html"},
+    }
+    write_report(report, track, Path(out_dir))
+    return report
+
+
+def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
+    return {"translation_m": [float(v) for v in T[:3, 3]], "quaternion_xyzw": [float(v) for v in se3.to_quat_xyzw(T)]}
+
+
+def write_report(report: dict, track: Track, out_dir: Path) -> None:
+    """report.json, report.md, report.html and the BOP CSV into ``out_dir``, each atomically."""
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise MvtopError(f"{out_dir}: cannot create the report folder ({err})") from None
+    scores = track.ess / float(track.summary.get("particles") or 0) if track.summary.get("particles") else np.ones(len(track.ess))
+    time_s = track.summary.get("time_per_frame_s")
+    with atomic_output(out_dir / report["files"]["bop_csv"], "w") as fh:
+        fh.write(R.bop_csv(track.frames, track.T_world_object, np.clip(scores, 0.0, 1.0), -1.0 if time_s is None else float(time_s),
+                           scene_id=BOP_SCENE_ID, obj_id=BOP_OBJ_ID))
+    with atomic_output(out_dir / "report.json", "w") as fh:
+        json.dump(_json_safe(report), fh, indent=2, allow_nan=False)
+        fh.write("\n")
+    with atomic_output(out_dir / report["files"]["markdown"], "w") as fh:
+        fh.write(R.render_markdown(report))
+    with atomic_output(out_dir / report["files"]["html"], "w") as fh:
+        fh.write(R.render_html(report))
+
+
+def _json_safe(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+# --- many runs ---------------------------------------------------------------------------------------
+
+
+def aggregate(reports: list[dict]) -> dict:
+    """Statistics of the final-frame metrics over runs: median, p95, mean and max of each
+    metric, the success rate (fraction of runs whose final pose is insertable), the mean
+    final NEES and the fraction within its 95 % bound; overall and per object."""
+    if not reports:
+        raise MvtopError("aggregate: no reports given (expected at least one report.json)")
+    finals = []
+    for i, r in enumerate(reports):
+        f = r.get("final") if isinstance(r, dict) else None
+        if not isinstance(f, dict) or "insertable" not in f or "translation_error_mm" not in f:
+            where = r.get("track_dir", f"report {i}") if isinstance(r, dict) else f"report {i}"
+            raise MvtopError(f"{where}: final.insertable / final.translation_error_mm missing (expected an mvtop eval report)")
+        finals.append((r.get("object", "?"), f))
+
+    def block(items: list[dict]) -> dict:
+        out: dict[str, Any] = {"runs": len(items)}
+        ok = [bool(f["insertable"]) for f in items]
+        out["successes"] = int(sum(ok))
+        out["success_rate"] = float(np.mean(ok))
+        for name in METRIC_NAMES:
+            vals = [f[name] for f in items if f.get(name) is not None]
+            out[name] = _stats(vals)
+        nees_vals = [f["nees"] for f in items if f.get("nees") is not None]
+        out["nees"] = _stats(nees_vals)
+        out["nees_within_bound_fraction"] = (
+            float(np.mean([f["nees_within_bound"] for f in items if f.get("nees") is not None])) if nees_vals else None
+        )
+        return out
+
+    result = block([f for _o, f in finals])
+    objects = sorted({o for o, _f in finals})
+    result["by_object"] = {o: block([f for oo, f in finals if oo == o]) for o in objects}
+    return result
