@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mvtop_cli.config import dump_config, load_config, parse_config
+from mvtop_cli.config import FilterConfig, dump_config, load_config, parse_config
 from mvtop_cli.errors import ConfigError
 
 BASE = """
@@ -44,7 +44,7 @@ def write(cfg_dir: Path, text: str, extra: dict | None = None) -> Path:
 def test_valid_config_resolves_paths_and_defaults(cfg_dir):
     cfg = load_config(write(cfg_dir, BASE))
     assert cfg.object.mesh == cfg_dir.resolve() / "cube.obj"
-    assert cfg.filter.num_particles == 1000
+    assert cfg.filter == FilterConfig()  # every default filled in
     assert cfg.environment[0].pose.matrix()[2, 3] == pytest.approx(0.02)
     assert cfg.required_topics()["/cameras/front/image/compressed"] == "sensor_msgs/msg/CompressedImage"
     assert cfg.required_topics()["/tactile/left/depth"] == "sensor_msgs/msg/Image"

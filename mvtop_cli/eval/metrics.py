@@ -148,7 +148,9 @@ def shift_covariance(covariance: np.ndarray, T_est: np.ndarray, S: np.ndarray) -
     a = np.einsum("...ij,...j->...i", T_est[..., :3, :3], S[..., :3, 3])
     J = np.zeros(a.shape[:-1] + (6, 6))
     J[..., :, :] = np.eye(6)
-    J[..., :3, 3:] = -se3._skew(a)
+    skew = np.zeros(a.shape[:-1] + (3, 3))
+    skew[..., 0, 1], skew[..., 0, 2], skew[..., 1, 2] = -a[..., 2], a[..., 1], -a[..., 0]
+    J[..., :3, 3:] = -(skew - np.swapaxes(skew, -1, -2))
     return J @ np.asarray(covariance, dtype=np.float64) @ np.swapaxes(J, -1, -2)
 
 
@@ -202,7 +204,8 @@ def _relative(T_est: np.ndarray, T_gt: np.ndarray, group: np.ndarray) -> np.ndar
 
 def _point_displacements(D: np.ndarray, points: np.ndarray) -> np.ndarray:
     """``D p - p`` (..., n, 3) for poses D (..., 4, 4) and points (n, 3)."""
-    return np.einsum("...ij,nj->...ni", D[..., :3, :3], points) + D[..., None, :3, 3] - points
+    # matmul, not einsum: this is the inner loop of every point metric and BLAS is ~10x faster.
+    return points @ np.swapaxes(D[..., :3, :3], -1, -2) + (D[..., None, :3, 3] - points)
 
 
 def _reduce_points(T_est, T_gt, points, symmetries, per_pose) -> np.ndarray:

@@ -75,6 +75,37 @@ def sensor_weights(
     return g / total, v / total
 
 
+def visuo_tactile_score(
+    iou_tactile: np.ndarray | None,
+    iou_vision: np.ndarray | None,
+    gamma: np.ndarray | None = None,
+    nu: np.ndarray | None = None,
+) -> np.ndarray:
+    """The matching score ``s~_n`` of eq. 2 for every particle, (N,) in [0, 1]: the
+    importance-weighted sum of the IoUs (arguments as for ``visuo_tactile_log_score``).
+
+    Unlike eq. 1's softmax, ``s~ / tau`` does not depend on which other particles are
+    scored with it, so it is the log-likelihood to use when poses scored in different
+    calls are compared (Metropolis moves, searches keeping earlier candidates): eq. 1's
+    normalisation over the batch would add a batch-dependent constant."""
+    tac = _iou_table(iou_tactile, None, "iou_tactile")
+    n = None if tac is None else tac.shape[0]
+    vis = _iou_table(iou_vision, n, "iou_vision")
+    if vis is not None:
+        n = vis.shape[0]
+    if n is None:
+        raise ValueError("at least one of iou_tactile and iou_vision must be given")
+    if tac is None:
+        tac = np.zeros((n, 0))
+    if vis is None:
+        vis = np.zeros((n, 0))
+    g, v = sensor_weights(
+        ~np.all(np.isnan(tac), axis=0), ~np.all(np.isnan(vis), axis=0), gamma, nu
+    )
+    # eq. 2; isolated NaNs (and absent sensors, whose weight is 0) contribute nothing.
+    return np.nan_to_num(tac, nan=0.0) @ g + np.nan_to_num(vis, nan=0.0) @ v
+
+
 def visuo_tactile_log_score(
     iou_tactile: np.ndarray | None,
     iou_vision: np.ndarray | None,

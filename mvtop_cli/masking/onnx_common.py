@@ -138,12 +138,18 @@ class OnnxModel:
     providers : execution providers in order of preference
     """
 
-    def __init__(self, path: Path | str, role: str, num_threads: int = 0, providers: Sequence[str] = ("CPUExecutionProvider",)):
+    def __init__(
+        self,
+        path: Path | str,
+        role: str,
+        num_threads: int = 0,
+        providers: Sequence[str] = ("CPUExecutionProvider",),
+    ):
         self.path = Path(path)
         self.role = role
         if not self.path.is_file():
             what = "is a directory" if self.path.is_dir() else "not found"
-            raise ModelError(f"{self.path}: {role} model {what} (expected an .onnx file; nothing is downloaded)")
+            raise ModelError(f"{self.path}: {role} {what} (expected an .onnx file; nothing is downloaded)")
         try:
             import onnxruntime as ort
         except ImportError as err:  # pragma: no cover - onnxruntime is a dependency
@@ -305,7 +311,8 @@ class ResizeFrame:
         if (self.resized_h, self.resized_w) == (self.height, self.width):
             return image
         shrink = self.resized_h * self.resized_w < self.height * self.width
-        return cv2.resize(image, (self.resized_w, self.resized_h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+        interpolation = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+        return cv2.resize(image, (self.resized_w, self.resized_h), interpolation=interpolation)
 
     def unpad(self, plane: np.ndarray) -> np.ndarray:
         """A model-input-sized (input_h, input_w) float map -> (H, W) in image pixels
@@ -333,7 +340,9 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     A, B = _packed(a), _packed(b)
     area_a = np.bitwise_count(A).sum(axis=1, dtype=np.int64)
     area_b = np.bitwise_count(B).sum(axis=1, dtype=np.int64)
-    inter = np.stack([np.bitwise_count(A & row).sum(axis=1, dtype=np.int64) for row in B], axis=1) if len(B) else np.zeros((len(A), 0), np.int64)
+    inter = np.zeros((len(A), len(B)), np.int64)
+    for j, row in enumerate(B):
+        inter[:, j] = np.bitwise_count(A & row).sum(axis=1, dtype=np.int64)
     union = area_a[:, None] + area_b[None, :] - inter
     return np.where(union > 0, inter / np.maximum(union, 1), 0.0)
 

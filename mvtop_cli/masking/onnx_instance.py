@@ -153,7 +153,13 @@ class InstanceOnnxBackend:
             raise m.fail(f"expected one input image[3,H,W] or image[1,3,H,W]; got {', '.join(map(str, m.inputs))}")
         spec = m.inputs[0]
         rank = len(spec.shape)
-        if rank not in (3, 4) or spec.fixed(rank - 3) not in (None, 3) or (rank == 4 and spec.fixed(0) not in (None, 1)):
+        channels_last = rank in (3, 4) and spec.fixed(rank - 3) is None and spec.fixed(rank - 1) == 3
+        if (
+            rank not in (3, 4)
+            or spec.fixed(rank - 3) not in (None, 3)
+            or (rank == 4 and spec.fixed(0) not in (None, 1))
+            or channels_last
+        ):
             raise m.fail(f"expected input image[3,H,W] or image[1,3,H,W] float32; got {spec}")
         if spec.type != "tensor(float)":
             raise m.fail(f"expected input {spec.name} of float32; got {spec.type}")
@@ -170,9 +176,8 @@ class InstanceOnnxBackend:
         for role, name in zip(OUTPUTS, self.output_names):
             out = m.output(name)
             if len(out.shape) != _RANKS[role]:
-                raise m.fail(
-                    f"expected outputs boxes[N,4], labels[N], scores[N], masks[N,1,h,w]; got {', '.join(map(str, m.outputs))}"
-                )
+                got = ", ".join(map(str, m.outputs))
+                raise m.fail(f"expected outputs boxes[N,4], labels[N], scores[N], masks[N,1,h,w]; got {got}")
 
     # -- inference -------------------------------------------------------------------------
 
@@ -240,16 +245,19 @@ class InstanceOnnxBackend:
         input pixels) of an (input_h, input_w) zero plane."""
         plane = np.zeros((frame.input_h, frame.input_w), np.float32)
         x0, y0, x1, y1 = box
-        c0, r0 = max(int(np.floor(x0)), 0), max(int(np.floor(y0)), 0)
-        c1, r1 = min(int(np.ceil(x1)), frame.input_w), min(int(np.ceil(y1)), frame.input_h)
+        # The pixels whose centres (c + 0.5, r + 0.5) lie in the box.
+        c0, r0 = max(int(np.ceil(x0 - 0.5)), 0), max(int(np.ceil(y0 - 0.5)), 0)
+        c1, r1 = min(int(np.floor(x1 - 0.5)) + 1, frame.input_w), min(int(np.floor(y1 - 0.5)) + 1, frame.input_h)
         if c1 <= c0 or r1 <= r0 or x1 <= x0 or y1 <= y0:
             return plane
-        # Sample the box-relative map at the centres of the covered pixels.
+        # Sample the box-relative map at their centres (its edge values reach the box edge).
         h, w = mask.shape
         cols = ((np.arange(c0, c1) + 0.5 - x0) / (x1 - x0) * w - 0.5).astype(np.float32)
         rows = ((np.arange(r0, r1) + 0.5 - y0) / (y1 - y0) * h - 0.5).astype(np.float32)
         map_x, map_y = np.meshgrid(cols, rows)
-        plane[r0:r1, c0:c1] = cv2.remap(mask.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        plane[r0:r1, c0:c1] = cv2.remap(
+            mask.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        )
         return plane
 
     # -- backend protocol ------------------------------------------------------------------

@@ -232,7 +232,8 @@ class SamOnnxBackend:
     def _check_encoder(self) -> None:
         enc = self.encoder
         if len(enc.inputs) != 1:
-            raise enc.fail(f"expected one input image[1,3,S,S]; got {len(enc.inputs)}: {', '.join(map(str, enc.inputs))}")
+            got = ", ".join(map(str, enc.inputs))
+            raise enc.fail(f"expected one input image[1,3,S,S]; got {len(enc.inputs)}: {got}")
         spec = enc.inputs[0]
         if len(spec.shape) != 4 or spec.fixed(1) not in (None, 3) or spec.fixed(0) not in (None, 1):
             raise enc.fail(f"expected input image[1,3,S,S] float32; got {spec}")
@@ -255,8 +256,7 @@ class SamOnnxBackend:
 
     def _check_decoder(self) -> None:
         dec = self.decoder
-        ranks = {"image_embeddings": 4, "point_coords": 3, "point_labels": 2, "mask_input": 4, "has_mask_input": 1, "orig_im_size": 1}
-        dec.require_inputs(DECODER_INPUTS, ranks)
+        dec.require_inputs(DECODER_INPUTS, dict(zip(DECODER_INPUTS, (4, 3, 2, 4, 1, 1))))
         dec.require_outputs(DECODER_OUTPUTS, {"masks": 4, "iou_predictions": 2})
         emb_in, emb_out = dec.input("image_embeddings"), self._embedding_spec
         for axis in (1, 2, 3):
@@ -267,7 +267,6 @@ class SamOnnxBackend:
         side = mask_in.fixed(2) or mask_in.fixed(3)
         emb_side = emb_in.fixed(2) or emb_out.fixed(2)
         self.mask_input_size = int(side or (4 * emb_side if emb_side else self.input_size // 4))
-        self._feed_types = {s.name: s.type for s in dec.inputs}
 
     # -- embedding -------------------------------------------------------------------------
 
@@ -276,7 +275,8 @@ class SamOnnxBackend:
         S = self.input_size
         frame = ResizeFrame.fit(image.shape[:2], (S, S))
         small = frame.resize(image).astype(np.float32)
-        small = (small - np.asarray(self.options.pixel_mean, np.float32)) / np.asarray(self.options.pixel_std, np.float32)
+        mean, std = np.asarray(self.options.pixel_mean, np.float32), np.asarray(self.options.pixel_std, np.float32)
+        small = (small - mean) / std
         x = np.zeros((1, 3, S, S), np.float32)
         x[0, :, : frame.resized_h, : frame.resized_w] = small.transpose(2, 0, 1)
         return x, frame

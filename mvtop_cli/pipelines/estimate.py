@@ -25,7 +25,7 @@ from ..filter.particles import ParticleSet, ess_from_log_weights
 from ..filter.resampling import resample
 from ..filter.search import cross_entropy_search
 from ..filter.pf import ParticleFilter
-from ..filter.scoring import visuo_tactile_log_score
+from ..filter.scoring import visuo_tactile_score
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.frames import LogTopics, SensorTopics, FrameReader
@@ -319,7 +319,10 @@ class Estimator:
 
         def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
             iou_t, iou_v = ious(T_ee_obj)
-            score = visuo_tactile_log_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None, f.temperature)
+            # eq. 1-2 without the softmax's normalisation over the batch (a constant for
+            # one batch, but poses scored in different calls are compared: Metropolis
+            # ratios, search elites), so log-likelihoods of different calls agree.
+            score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None) / f.temperature
             if contact and self.scene.has_contact_model:
                 phi = self.scene.phi(T_world_ee @ T_ee_obj)
                 score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)

@@ -400,7 +400,8 @@ def _nees_block(value: float, bound: float) -> dict[str, Any]:
 def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None) -> dict:
     """Score the track in ``track_dir`` against the ground truth of ``log`` (or the final
     pose in ``gt_file``, which wins when both are given) and write report.json,
-    report.md, report.html and estimates_bop.csv into ``out_dir``; returns the report.
+    report.md, report.html and estimates_bop.csv into ``out_dir``; returns the report
+    (the content of report.json).
 
     ``config`` defaults to ``track_dir/config.resolved.yaml``.
     """
@@ -412,57 +413,39 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
             raise TrackError(f"{cfg_path}: file not found (expected the resolved config written by mvtop estimate)")
         config = load_config(cfg_path)
     model = object_model(config)
+    T_gt, gt_info = _ground_truth(track, log, gt_file, config)
     n = len(track.stamps_ns)
-
-    if gt_file is not None:
-        T_gt = np.full((n, 4, 4), np.nan)
-        T_gt[-1] = read_gt_file(Path(gt_file))
-        gt_info = {"source": "file", "file": str(gt_file), "frames": "final"}
-    elif log is not None:
-        topic = config.topics.ground_truth
-        tol = int(round(config.sync_tolerance_s * 1e9))
-        T_gt = ground_truth_from_log(Path(log), topic, config.frames.world, track.stamps_ns, tol)
-        gt_info = {"source": "log", "log": str(log), "topic": topic, "frames": "all", "interpolated": True}
-        if np.isnan(T_gt[-1]).any():
-            raise LogError(
-                f"{log}: ground truth on {topic!r} does not cover the final frame (stamp {int(track.stamps_ns[-1])} ns, "
-                f"tolerance {tol} ns); expected the log the track was estimated from"
-            )
-    else:
-        raise MvtopError("no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose")
-
-    has = ~np.isnan(T_gt).any(axis=(1, 2))
-    idx = np.flatnonzero(has)
+    idx = np.flatnonzero(~np.isnan(T_gt).any(axis=(1, 2)))
     T_world_ee = track.T_world_ee
+    # Per frame only the spreads are known: the diagonal approximation (docs/metrics.md).
     diag = np.zeros((n, 6, 6))
     diag[:, [0, 1, 2], [0, 1, 2]] = track.std_translation_m[:, None] ** 2
     diag[:, [3, 4, 5], [3, 4, 5]] = track.std_rotation_rad[:, None] ** 2
     scores = score_poses(model, track.T_world_object[idx], T_gt[idx], track.T_ee_object[idx], T_world_ee[idx], diag[idx])
-    final_scores = score_poses(
-        model, track.T_world_object[-1:], T_gt[-1:], track.T_ee_object[-1:], T_world_ee[-1:], track.final_covariance_ee[None]
-    )
+    final_scores = score_poses(model, track.T_world_object[-1:], T_gt[-1:], track.T_ee_object[-1:], T_world_ee[-1:],
+                               track.final_covariance_ee[None])
     bound = M.chi2_bound(6, NEES_PROBABILITY)
     t0 = int(track.stamps_ns[0])
 
+    def when(i: int) -> dict[str, Any]:
+        return {"frame": int(track.frames[i]), "stamp_ns": int(track.stamps_ns[i]), "time_s": (int(track.stamps_ns[i]) - t0) * 1e-9}
+
     per_frame = []
     for j, i in enumerate(idx):
-        row = {"frame": int(track.frames[i]), "stamp_ns": int(track.stamps_ns[i]), "time_s": (int(track.stamps_ns[i]) - t0) * 1e-9}
-        row.update(_row(scores, j))
-        row.update({
+        per_frame.append({
+            **when(i), **_row(scores, j),
             "std_translation_mm": float(track.std_translation_m[i] * 1e3),
             "std_rotation_deg": float(np.degrees(track.std_rotation_rad[i])),
             **_nees_block(scores["nees"][j], bound),
         })
-        per_frame.append(row)
-
-    final = {"frame": int(track.frames[-1]), "stamp_ns": int(track.stamps_ns[-1]), "time_s": (int(track.stamps_ns[-1]) - t0) * 1e-9}
-    final.update(_row(final_scores, 0))
-    final["clearance_mm"] = model.clearance_m * 1e3
-    final.update(_nees_block(final_scores["nees"][0], bound))
-    final["nees_covariance"] = "summary.json final.covariance_ee (full 6x6)"
-    final["T_world_object_estimate"] = _pose_dict(track.T_world_object[-1])
-    final["T_world_object_truth"] = _pose_dict(T_gt[-1])
-
+    final = {
+        **when(n - 1), **_row(final_scores, 0),
+        "clearance_mm": model.clearance_m * 1e3,
+        **_nees_block(final_scores["nees"][0], bound),
+        "nees_covariance": "summary.json final.covariance_ee (full 6x6)",
+        "T_world_object_estimate": _pose_dict(track.T_world_object[-1]),
+        "T_world_object_truth": _pose_dict(T_gt[-1]),
+    }
     frames_block: dict[str, Any] = {
         "count": n,
         "with_truth": int(len(idx)),
@@ -473,7 +456,8 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "nees_covariance": "diagonal approximation from track.csv's std_translation_m and std_rotation_deg "
                            "(per-frame full covariances are not in track.csv)",
     }
-    report = {
+    summary_keys = ("log", "modalities", "particles", "seed", "frames_processed", "time_per_frame_s")
+    report = _json_safe({
         "schema": REPORT_SCHEMA,
         "track_dir": str(track_dir),
         "object": model.name,
@@ -481,14 +465,34 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "clearance_mm": model.clearance_m * 1e3,
         "insertion_depth_mm": model.insertion_depth_m * 1e3,
         "ground_truth": gt_info,
-        "estimate": {k: track.summary.get(k) for k in ("log", "modalities", "particles", "seed", "frames_processed", "time_per_frame_s")},
+        "estimate": {k: track.summary.get(k) for k in summary_keys},
         "final": final,
         "frames": frames_block,
         "per_frame": per_frame,
         "files": {"bop_csv": "estimates_bop.csv", "markdown": "report.md", "html": "report.html"},
-    }
+    })
     write_report(report, track, Path(out_dir))
     return report
+
+
+def _ground_truth(track: Track, log: Path | None, gt_file: Path | None, config: Config) -> tuple[np.ndarray, dict]:
+    """Truth ``T_world_object`` (N, 4, 4) per track frame (NaN where unknown) and where it came from."""
+    n = len(track.stamps_ns)
+    if gt_file is not None:
+        T_gt = np.full((n, 4, 4), np.nan)
+        T_gt[-1] = read_gt_file(Path(gt_file))
+        return T_gt, {"source": "file", "file": str(gt_file), "frames": "final"}
+    if log is None:
+        raise MvtopError("no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose")
+    topic = config.topics.ground_truth
+    tol = int(round(config.sync_tolerance_s * 1e9))
+    T_gt = ground_truth_from_log(Path(log), topic, config.frames.world, track.stamps_ns, tol)
+    if np.isnan(T_gt[-1]).any():
+        raise LogError(
+            f"{log}: ground truth on {topic!r} does not cover the final frame (stamp {int(track.stamps_ns[-1])} ns, "
+            f"tolerance {tol} ns); expected the log the track was estimated from"
+        )
+    return T_gt, {"source": "log", "log": str(log), "topic": topic, "frames": "all", "interpolated": True}
 
 
 def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -502,11 +506,13 @@ def write_report(report: dict, track: Track, out_dir: Path) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise MvtopError(f"{out_dir}: cannot create the report folder ({err})") from None
-    scores = track.ess / float(track.summary.get("particles") or 0) if track.summary.get("particles") else np.ones(len(track.ess))
+    particles = track.summary.get("particles")
+    ok = isinstance(particles, (int, float)) and particles > 0
+    score = np.clip(track.ess / particles, 0.0, 1.0) if ok else np.ones(len(track.ess))
     time_s = track.summary.get("time_per_frame_s")
+    time_s = float(time_s) if isinstance(time_s, (int, float)) else -1.0  # BOP: -1 means unknown
     with atomic_output(out_dir / report["files"]["bop_csv"], "w") as fh:
-        fh.write(R.bop_csv(track.frames, track.T_world_object, np.clip(scores, 0.0, 1.0), -1.0 if time_s is None else float(time_s),
-                           scene_id=BOP_SCENE_ID, obj_id=BOP_OBJ_ID))
+        fh.write(R.bop_csv(track.frames, track.T_world_object, score, time_s, scene_id=BOP_SCENE_ID, obj_id=BOP_OBJ_ID))
     with atomic_output(out_dir / "report.json", "w") as fh:
         json.dump(_json_safe(report), fh, indent=2, allow_nan=False)
         fh.write("\n")

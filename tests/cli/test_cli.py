@@ -149,6 +149,14 @@ def test_estimate_writes_the_track_folder(tmp_path):
     assert resolved["modalities"] == ["vision", "tactile"] and resolved["filter"]["num_particles"] == 100
     assert len((out / "track.csv").read_text().splitlines()) == 4
 
+    ev = run("eval", str(out), "--log", str(SAMPLE))
+    assert ev.returncode == 0, ev.stderr
+    report = __import__("json").loads((out / "eval" / "report.json").read_text())
+    assert f"final error {report['final']['translation_error_mm']:.3f} mm" in ev.stdout
+    assert sorted(p.name for p in (out / "eval").iterdir()) == ["estimates_bop.csv", "report.html", "report.json", "report.md"]
+    line = one_error_line(run("eval", str(out)))
+    assert "no ground truth" in line
+
 
 def test_estimate_rejects_unknown_modality(tmp_path):
     line = one_error_line(run("estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(tmp_path / "o"),
