@@ -263,6 +263,63 @@ def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_d
     )
 
 
+@cli.command("render-masks")
+@click.argument("log", type=LOG_PATH)
+@CONFIG_OPTION
+@click.option("--track", "track_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="An `estimate` output folder: render at its estimates.")
+@click.option("--frames", "frames_spec", metavar="LIST", help="Frame indices, e.g. 0,5,10-20 (default: all).")
+@click.option("--pose-ee", metavar="X,Y,Z,QX,QY,QZ,QW",
+              help="Render at this object pose in the ee frame (metres, quaternion xyzw) instead of a track.")
+@click.option("--no-video", is_flag=True, help="Skip masks.mp4.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Output folder.")
+def render_masks_cmd(log: Path, config_path: Path | None, track_dir: Path | None, frames_spec: str | None,
+                     pose_ee: str | None, no_video: bool, out_dir: Path) -> None:
+    """Show what the estimator sees: per frame and sensor the image, the observed mask, the
+    CAD mask rendered at the estimate (--track) and at the ground truth, an overlay with the
+    IoU (observed blue, rendered yellow, truth outlined green), a contact sheet per frame and
+    a video. Without --track it renders at the ground truth, or at --pose-ee: the quickest way
+    to see a wrong extrinsic or grasp pose in a config."""
+    import numpy as np
+
+    from .config import load_config
+    from .geometry import se3
+    from .pipelines.render_masks import RenderMasksOptions, render_masks
+
+    if config_path is None:
+        raise MvtopError("render-masks needs --config CFG")
+    if track_dir is not None and pose_ee is not None:
+        raise MvtopError("give either --track or --pose-ee, not both")
+    cfg = load_config(config_path)
+    frames = None
+    if frames_spec:
+        frames = []
+        try:
+            for part in frames_spec.split(","):
+                a, _, b = part.partition("-")
+                frames += list(range(int(a), int(b) + 1)) if b else [int(a)]
+        except ValueError:
+            raise MvtopError(f"--frames: expected indices such as 0,5,10-20, got {frames_spec!r}") from None
+    T = None
+    if pose_ee is not None:
+        try:
+            v = [float(x) for x in pose_ee.split(",")]
+            assert len(v) == 7 and abs(np.linalg.norm(v[3:]) - 1.0) < 1e-3
+        except (ValueError, AssertionError):
+            raise MvtopError(f"--pose-ee: expected x,y,z,qx,qy,qz,qw with a unit quaternion, got {pose_ee!r}") from None
+        T = se3.from_quat_xyzw(np.array(v[3:]), np.array(v[:3]))
+    options = RenderMasksOptions(frames=tuple(frames) if frames else None, pose_ee=T, video=not no_video)
+    with _progress("render-masks") as update:
+        summary = render_masks(log, cfg, out_dir, track_dir, options, progress=update)
+    click.echo(f"wrote {out_dir}: {len(summary['frames'])} frames" + (", masks.mp4" if not no_video else ""))
+    for fr in summary["frames"]:
+        parts = []
+        for name, rec in fr["sensors"].items():
+            val = rec["iou_estimate"] if rec["iou_estimate"] is not None else rec["iou_truth"]
+            parts.append(f"{name} {'n/a' if val is None else f'{val:.3f}'}")
+        click.echo(f"frame {fr['frame']:4d}  IoU  " + "  ".join(parts))
+
+
 @cli.group("benchmark")
 def benchmark_group() -> None:
     """Measure speed on this machine."""
