@@ -182,6 +182,8 @@ def _box_of(roi_box, shape: tuple[int, int]) -> tuple[int, int, int, int]:
     ``x0, y0, width, height`` such as :class:`mvtop_cli.render.roi.Roi`.
     """
     H, W = shape
+    if hasattr(roi_box, "roi_box") and hasattr(roi_box, "extras"):  # a masking.base.MaskContext
+        roi_box = roi_box.roi_box
     if roi_box is None:
         return 0, 0, W, H
     if all(hasattr(roi_box, a) for a in ("x0", "y0", "width", "height")):
@@ -594,7 +596,9 @@ class ClassicalCameraBackend:
         image : (H, W, 3) uint8 RGB
         roi_box : where the object can be: ``(x0, y0, x1, y1)`` half-open pixel columns and
             rows (e.g. the pose belief projected into the image), an object with ``x0, y0,
-            width, height`` (a :class:`~mvtop_cli.render.roi.Roi`), or None for the whole image
+            width, height`` (a :class:`~mvtop_cli.render.roi.Roi`), a
+            :class:`~mvtop_cli.masking.base.MaskContext` (its ``roi_box``), or None for the
+            whole image
         Returns at most ``max_proposals`` (H, W) bool masks, best-ranked first, each inside
         the window, of plausible area, no two with IoU above ``merge_iou``.
         """
