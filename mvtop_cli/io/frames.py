@@ -92,6 +92,19 @@ def header_stamp_ns(msg: Any, log_time_ns: int) -> int:
     return t if t != 0 else log_time_ns
 
 
+_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+
+
+def undistort_maps(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+    """Remap tables (H, W) float32 that undistort an image of ``camera`` into a pinhole image
+    with the same intrinsics ``K`` (OpenCV's model: ``plumb_bob`` k1 k2 p1 p2 k3,
+    ``rational_polynomial`` k1 k2 p1 p2 k3 k4 k5 k6)."""
+    import cv2
+
+    D = np.asarray(camera.distortion, dtype=np.float64).ravel()
+    return cv2.initUndistortRectifyMap(camera.K, D, None, camera.K, (camera.width, camera.height), cv2.CV_32FC1)
+
+
 def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
     """A PinholeCamera from a decoded sensor_msgs/CameraInfo."""
     K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
@@ -100,13 +113,14 @@ def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
             f"topic {topic!r}: CameraInfo has focal lengths fx={K[0, 0]}, fy={K[1, 1]} "
             "(expected a calibrated camera with positive k[0] and k[4])"
         )
-    return PinholeCamera(
-        width=int(msg.width),
-        height=int(msg.height),
-        K=K,
-        distortion_model=str(msg.distortion_model) or "plumb_bob",
-        distortion=np.asarray(msg.d, dtype=np.float64),
-    )
+    model = str(msg.distortion_model) or "plumb_bob"
+    D = np.asarray(msg.d, dtype=np.float64)
+    if np.any(D != 0) and model not in _DISTORTION_MODELS:
+        raise LogError(
+            f"topic {topic!r}: CameraInfo distortion model {model!r} is not supported "
+            f"(expected {' or '.join(_DISTORTION_MODELS)}, or all-zero coefficients)"
+        )
+    return PinholeCamera(width=int(msg.width), height=int(msg.height), K=K, distortion_model=model, distortion=D)
 
 
 @dataclass
@@ -197,6 +211,7 @@ class FrameReader:
         self.max_pending = max_pending
         self.start_ns, self.end_ns = start_ns, end_ns
         self.skipped: list[tuple[int, str]] = []
+        self._undistort_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.tf = TfBuffer(tf_tolerance_ns, source=str(log.path))
         self._summary = log.summary()
         self._check_topics()
@@ -322,6 +337,27 @@ class FrameReader:
         # Fail early (not at the first frame) when the world or ee frame is not in TF.
         self.tf.time_bounds(t.world_frame, t.ee_frame)
         self._loaded = True
+
+    def _undistort(self, name: str, rgb: np.ndarray, depth, camera: PinholeCamera, stamp: int):
+        """The image (and depth) undistorted to the pinhole model the renderers use, and that
+        camera without distortion; the remap tables are cached per sensor and calibration."""
+        import cv2
+
+        key = (name, camera.width, camera.height, camera.K.tobytes(), np.asarray(camera.distortion).tobytes())
+        maps = self._undistort_cache.get(key)
+        if maps is None:
+            maps = self._undistort_cache[key] = undistort_maps(camera)
+        if rgb.shape[:2] != (camera.height, camera.width):
+            raise LogError(
+                f"{self.log.path}: sensor {name!r}: image of {rgb.shape[1]}x{rgb.shape[0]} px but CameraInfo "
+                f"says {camera.width}x{camera.height} (stamp {stamp} ns)"
+            )
+        rgb = cv2.remap(rgb, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        if depth is not None:
+            depth = cv2.remap(depth, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        pinhole = PinholeCamera(width=camera.width, height=camera.height, K=camera.K, distortion_model=camera.distortion_model,
+                                distortion=np.zeros_like(np.asarray(camera.distortion, dtype=np.float64)))
+        return rgb, depth, pinhole
 
     def _camera_at(self, sensor: str, t_ns: int) -> PinholeCamera:
         stamps, cams = self._infos[sensor]
@@ -451,11 +487,14 @@ class FrameReader:
                 rgb = decode_image(m.msg, m.topic)
             except LogError as err:  # the decoders know the topic; add the log and time
                 raise LogError(f"{self.log.path}: {err} (stamp {st} ns)") from err
+            camera = self._camera_at(s.name, st)
+            if camera.has_distortion:
+                rgb, depth, camera = self._undistort(s.name, rgb, depth, camera, st)
             img = SensorImage(
                 sensor=s.name,
                 stamp_ns=st,
                 image=rgb,
-                camera=self._camera_at(s.name, st),
+                camera=camera,
                 T_world_sensor=self.tf.lookup(t.world_frame, frame_id, st),
                 depth=depth,
             )
