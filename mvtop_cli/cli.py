@@ -331,11 +331,15 @@ def benchmark_group() -> None:
               help="Comma-separated particle counts.")
 @click.option("--repeats", type=click.IntRange(1, 100), default=7, show_default=True, help="Best of this many runs.")
 @click.option("--no-reference", is_flag=True, help="Skip the one-pyrender-call-per-particle reference path.")
+@click.option("--log", "log_path", type=LOG_PATH,
+              help="Also time the masking backends of --config per frame on this log (e.g. its sample log).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list of rows for scripts.")
-def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: int, no_reference: bool, as_json: bool) -> None:
+def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: int, no_reference: bool,
+                        log_path: Path | None, as_json: bool) -> None:
     """Particle x sensor evaluations per second (render + IoU in a region of interest) of the
     batched renderer, beside one pyrender call per particle, for 2 cameras and 2 tactile sensors
-    looking at the object of --config (default: configs/cube.yaml's cube)."""
+    looking at the object of --config (default: the simulator's cube); with --log, the
+    per-frame masking time of the config's backends too."""
     import json
     import os
 
@@ -362,8 +366,15 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
     out = [{"particles": r["particles"], "evals_per_s": round(r["evals_per_s"], 1),
             "reference_evals_per_s": None if r["reference_evals_per_s"] is None else round(r["reference_evals_per_s"], 1),
             "mesh": r["mesh"], "threads": r["threads"]} for r in rows]
+    masking = None
+    if log_path is not None:
+        if config_path is None:
+            raise MvtopError("--log needs --config (the masking backends come from the config)")
+        from .pipelines.observe import masking_speed
+
+        masking = masking_speed(log_path, cfg)
     if as_json:
-        click.echo(json.dumps(out))
+        click.echo(json.dumps(out if masking is None else {"render": out, "masking_ms_per_frame": masking}))
         return
     click.echo(f"machine: {os.cpu_count()} cores; numba threads: {out[0]['threads']}; 2 cameras + 2 tactile sensors")
     click.echo(f"{'mesh':<10} {'particles':>9} {'evals/s':>10} {'pyrender evals/s':>17} {'speed-up':>9}")
@@ -371,6 +382,9 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
         ref = r["reference_evals_per_s"]
         ratio = f"{r['evals_per_s'] / ref:8.0f}x" if ref else "        -"
         click.echo(f"{r['mesh']:<10} {r['particles']:>9} {r['evals_per_s']:>10.0f} {ref or float('nan'):>17.0f} {ratio}")
+    if masking is not None:
+        click.echo(f"masking per frame ({cfg.masking.camera.backend} cameras, {cfg.masking.tactile.backend}/depth tactile): "
+                   + ", ".join(f"{k[:-3].replace('_', ' ')} {v:.1f} ms" for k, v in masking.items()))
 
 
 @benchmark_group.command("accuracy")
