@@ -119,6 +119,7 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Std of the per-frame log exposure (lighting changes).")
 @click.option("--low-contrast", is_flag=True, help="Paint the object like the gripper (the paper's peg).")
 @click.option("--object-color", metavar="R,G,B", help="Paint the object this colour (0-1 each), e.g. 1,0,1.")
+@click.option("--distortion", metavar="K1,K2,P1,P2,K3", help="Camera lens distortion (plumb_bob), e.g. -0.15,0.05,0,0,0.")
 @click.option("--noise", type=click.FloatRange(0, 50), default=2.0, show_default=True, help="Camera read noise [DN].")
 @click.option("--resolution", default="640x480", show_default=True, metavar="WxH", help="Camera resolution.")
 @click.option("--image-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True)
@@ -130,7 +131,7 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Also write the YAML config of the scene (meshes are referenced in configs/meshes).")
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
 def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
-                 slip_deg, occluders, exposure_jitter, low_contrast, object_color, noise, resolution, image_format, tactile_format,
+                 slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
                  jpeg_quality, compression, write_config, list_objects) -> None:
     """Simulate a visuo-tactile insertion episode and write it as a ROS 2 MCAP log with ground truth.
 
@@ -160,6 +161,14 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
             rgb = ()
         if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
             raise MvtopError(f"--object-color: expected three numbers 0-1 such as 1,0,1, got {object_color!r}")
+    dist = None
+    if distortion:
+        try:
+            dist = tuple(float(v) for v in distortion.split(","))
+        except ValueError:
+            dist = ()
+        if len(dist) != 5:
+            raise MvtopError(f"--distortion: expected five numbers k1,k2,p1,p2,k3, got {distortion!r}")
     _check_output_path(out, ".mcap")
     from .pipelines.simulate import SimulateOptions, simulate, write_scene_config
     from .sim.episode import EpisodeOptions
@@ -170,7 +179,7 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
             frames=frames, grasp_translation_m=grasp_translation_mm / 1000.0, grasp_rotation_deg=grasp_rotation_deg,
             grasp_tilt_deg=grasp_tilt_deg, slip_translation_m=slip_mm / 1000.0, slip_rotation_deg=slip_deg,
         ),
-        width=width, height=height, noise_std=noise, exposure_jitter=exposure_jitter, low_contrast=low_contrast, object_rgb=rgb,
+        width=width, height=height, noise_std=noise, exposure_jitter=exposure_jitter, low_contrast=low_contrast, object_rgb=rgb, distortion=dist,
         occluders=occluders, image_format=image_format, tactile_format=tactile_format, jpeg_quality=jpeg_quality,
         compression=compression,
     )

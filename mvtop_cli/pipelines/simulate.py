@@ -42,6 +42,7 @@ class SimulateOptions:
     exposure_jitter: float = 0.0  # std of the per-frame log exposure (0: constant lighting)
     low_contrast: bool = False  # object painted like the gripper (the paper's peg case)
     object_rgb: tuple[float, float, float] | None = None  # paint the object this colour (0-1)
+    distortion: tuple[float, ...] | None = None  # camera lens distortion, plumb_bob k1 k2 p1 p2 k3
     occluders: int = 0  # extra cables in front of the object
     image_format: str = "jpeg"  # cameras: jpeg | png | raw
     tactile_format: str = "jpeg"  # tactile images: jpeg | png | raw
@@ -92,6 +93,11 @@ def simulate(
 
     target = T_world_rec[:3, 3] + np.array([0.0, 0.0, 0.012])
     cameras = camera_placements(target, options.width, options.height)
+    lens = None
+    if options.distortion is not None:
+        D = np.asarray(options.distortion, dtype=np.float64)
+        cameras = [replace(c, camera=replace(c.camera, distortion_model="plumb_bob", distortion=D)) for c in cameras]
+        lens = distortion_maps(cameras[0].camera)
     fingers = grip.gripper_meshes()
     finger_mat = _material(grip.FINGER_COLOR_RGBA, metallic=0.6, roughness=0.45)
     obj_mat = finger_mat if options.low_contrast else _material(spec.color_rgba, spec.metallic, spec.roughness)
@@ -125,7 +131,7 @@ def simulate(
             log.write_tf(static, t0, static=True)
             for k, st in enumerate(states):
                 _write_frame(log, st, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
-                             backgrounds, cables, key_dir, options, cam_rng, tac_rng)
+                             backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
                 if progress is not None:
                     progress(k + 1, len(states))
     finally:
@@ -135,7 +141,7 @@ def simulate(
 
 
 def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
-                 backgrounds, cables, key_dir, options: SimulateOptions, cam_rng, tac_rng) -> None:
+                 backgrounds, cables, key_dir, options: SimulateOptions, cam_rng, tac_rng, lens=None) -> None:
     t = st.stamp_ns
     T_world_obj = st.T_world_object
     T_ee_fingers = grip.finger_poses(st.finger_opening_m)
@@ -156,7 +162,11 @@ def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac
     cam_renderer.set_lights(key_dir, T_world_obj[:3, 3] + np.array([-0.15, -0.25, 0.35]), 3.0, 1.2)
     photo = PhotometricOptions(exposure=exposure, noise_std=options.noise_std)
     for cam in cameras:
-        linear, _ = cam_renderer.render(cam.camera, cam.T_world_camera)
+        linear, _ = cam_renderer.render(replace(cam.camera, distortion=np.zeros(5)), cam.T_world_camera)
+        if lens is not None:  # the pinhole render seen through the lens
+            import cv2
+
+            linear = cv2.remap(linear, lens[0], lens[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rgb = apply_camera_effects(linear, photo, cam_rng)
         _write_rgb(log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality)
         log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")
@@ -171,6 +181,18 @@ def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac
         _write_rgb(log, f"/tactile/{s}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
         log.write_depth(f"/tactile/{s}/depth", indentation, t, frame_id)
         log.write_camera_info(f"/tactile/{s}/camera_info", tac_camera, t, frame_id)
+
+
+def distortion_maps(camera) -> tuple[np.ndarray, np.ndarray]:
+    """Remap tables (H, W) float32 that turn a pinhole image of ``camera`` into the image its
+    lens distortion makes: for each distorted pixel, where its ray lands in the pinhole image."""
+    import cv2
+
+    H, W = camera.height, camera.width
+    uv = np.stack(np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64)), -1).reshape(-1, 1, 2)
+    und = cv2.undistortPoints(uv, camera.K, np.asarray(camera.distortion, dtype=np.float64), P=camera.K)
+    und = und.reshape(H, W, 2).astype(np.float32)
+    return und[..., 0], und[..., 1]
 
 
 def indentation_from_depth(depth_m: np.ndarray, gel_distance_m: float, gel_thickness_m: float = 0.004) -> np.ndarray:

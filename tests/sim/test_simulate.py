@@ -142,3 +142,39 @@ def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
     c, _ = _simulate(tmp_path / "c", "conn1", seed=12, **opts)
     assert a.read_bytes() == b.read_bytes()
     assert a.read_bytes() != c.read_bytes()
+
+
+def test_cameras_with_lens_distortion_are_undistorted_back_to_the_pinhole_images(tmp_path):
+    """The simulator images through a distorting lens and records it in CameraInfo; the
+    reader undistorts, which gives back the pinhole camera's images (and the pinhole render
+    at the ground truth matches them)."""
+    from mvtop_cli.io.images import decode_image
+
+    D = (-0.3, 0.1, 0.001, -0.001, 0.0)
+    opts = dict(object_rgb=MAGENTA, noise_std=0.0, image_format="png", frames=4)
+    log, cfg_path = _simulate(tmp_path / "lens", "plug", distortion=D, **opts)
+    plain, _ = _simulate(tmp_path / "pinhole", "plug", **opts)
+    with McapLog(log) as mlog:
+        info = next(mlog.messages("/cameras/front/camera_info")).msg
+        raw = [decode_image(m.msg, m.topic) for m in mlog.messages("/cameras/front/image/compressed")]
+    np.testing.assert_allclose(info.d, D)
+    cfg, frames, tf = _frames(log, cfg_path)
+    _, pinhole_frames, _ = _frames(plain, cfg_path)
+    inner = (slice(40, 440), slice(50, 590))  # undistortion leaves the image corners empty
+    for fr, ref, distorted in zip(frames, pinhole_frames, raw):
+        img = fr.cameras["front"]
+        assert not img.camera.has_distortion  # the reader hands out pinhole images
+        pinhole = ref.cameras["front"].image.astype(float)
+        err_undistorted = np.abs(img.image.astype(float) - pinhole)[inner].mean()
+        err_distorted = np.abs(distorted.astype(float) - pinhole)[inner].mean()
+        assert err_undistorted < 1.5 and err_distorted > 4 * err_undistorted, (err_undistorted, err_distorted)
+    scene = SceneModel(cfg, build_contact=False)
+    inter = union = 0
+    for fr in frames:
+        for img in fr.cameras.values():
+            T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
+            occ = scene.occluders(img.T_world_sensor, lambda f: tf.lookup("world", f, img.stamp_ns))
+            rendered = scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, Roi.full(img.camera), occ)[0]
+            seen = _magenta(img.image)
+            inter, union = inter + (rendered & seen).sum(), union + (rendered | seen).sum()
+    assert inter / union >= 0.95
