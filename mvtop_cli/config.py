@@ -180,6 +180,8 @@ class ContactConfig:
     margin_m: float = field(default=0.0, metadata=_rng(-0.01, 0.01))
     softness_m: float = field(default=0.0002, metadata=_rng(0.0, 0.01, lo_open=True))
     sdf_resolution_m: float = field(default=0.00025, metadata=_rng(0.0, 0.01, lo_open=True))
+    force_on_n: float = field(default=2.0, metadata=_rng(0.0, 10000.0, doc="with topics.wrench: contact starts here"))
+    force_off_n: float = field(default=1.0, metadata=_rng(0.0, 10000.0, doc="with topics.wrench: contact ends here"))
 
 
 @dataclass(frozen=True)
@@ -212,6 +214,8 @@ class Config:
                 req[tac.depth_topic] = "sensor_msgs/msg/Image"
         if self.topics.contact and "contact" in self.modalities:
             req[self.topics.contact] = "std_msgs/msg/Bool"
+        elif self.topics.wrench and "contact" in self.modalities:
+            req[self.topics.wrench] = "geometry_msgs/msg/WrenchStamped"
         return req
 
     def required_frames(self) -> list[str]:
@@ -380,6 +384,8 @@ def _check_semantics(cfg: Config) -> None:
     for key, path in meshes:
         if not path.is_file():
             raise _Invalid(key, f"mesh file not found: {path}")
+    if cfg.contact.force_off_n >= cfg.contact.force_on_n:
+        raise _Invalid("contact.force_off_n", "expected a value below contact.force_on_n (hysteresis)")
     f = cfg.filter
     if f.sigma_high_translation_m < f.sigma_low_translation_m:
         raise _Invalid("filter.sigma_high_translation_m", "expected a value >= filter.sigma_low_translation_m")

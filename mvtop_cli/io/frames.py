@@ -84,6 +84,12 @@ class LogTopics:
     world_frame: str = "world"
     ee_frame: str = "ee"
     sync_tolerance_ns: int = 10_000_000
+    # Contact from a force sensor instead of a Bool: geometry_msgs/WrenchStamped on ``wrench``
+    # (used when ``contact`` is None or absent), with hysteresis: contact starts when the force
+    # magnitude reaches ``contact_force_on_n`` [N] and ends when it falls to ``contact_force_off_n``.
+    wrench: str | None = None
+    contact_force_on_n: float = 2.0
+    contact_force_off_n: float = 1.0
 
 
 def header_stamp_ns(msg: Any, log_time_ns: int) -> int:
@@ -246,6 +252,12 @@ class FrameReader:
                 "(expected tf2_msgs/msg/TFMessage transforms)"
             )
         self._has_contact = t.contact is not None and self._require(t.contact, (rm.BOOL,), "contact", optional=True)
+        self._has_wrench = (
+            not self._has_contact and t.wrench is not None
+            and self._require(t.wrench, (rm.WRENCH_STAMPED,), "contact from force", optional=True)
+        )
+        if self._has_wrench and not t.contact_force_on_n > t.contact_force_off_n >= 0:
+            raise ValueError(f"contact force thresholds need on > off >= 0, got {t.contact_force_on_n}, {t.contact_force_off_n}")
         self._has_joints = t.joint_states is not None and self._require(
             t.joint_states, (rm.JOINT_STATE,), "finger opening", optional=True
         )
@@ -270,6 +282,8 @@ class FrameReader:
             small.append(t.tf_static)
         if self._has_contact:
             small.append(t.contact)  # type: ignore[arg-type]
+        if self._has_wrench:
+            small.append(t.wrench)  # type: ignore[arg-type]
         if self._has_joints:
             small.append(t.joint_states)  # type: ignore[arg-type]
         if self._has_gt:
@@ -280,6 +294,7 @@ class FrameReader:
         small.extend(info_of)
 
         self._contact = _Series()
+        touching = False  # hysteresis state of a force-based contact signal
         self._finger = _Series()
         gt_t: list[int] = []
         gt_v: list[np.ndarray] = []
@@ -296,6 +311,14 @@ class FrameReader:
                 self.tf.add_tf_message(msg, static=False)
             elif m.topic == t.contact:
                 self._contact.add(m.log_time_ns, float(bool(msg.data)))
+            elif self._has_wrench and m.topic == t.wrench:
+                f = msg.wrench.force
+                force = float(np.sqrt(f.x * f.x + f.y * f.y + f.z * f.z))
+                if force >= t.contact_force_on_n:
+                    touching = True
+                elif force <= t.contact_force_off_n:
+                    touching = False
+                self._contact.add(header_stamp_ns(msg, m.log_time_ns), float(touching))
             elif m.topic == t.joint_states:
                 # JointState may leave position empty (names only): zip stops at the shorter.
                 fingers = [p for n, p in zip(msg.name, msg.position) if "finger" in n.lower()]
@@ -502,7 +525,7 @@ class FrameReader:
         if not cameras and not tactile:
             self.skipped.append((stamp, "no sensor of the frame has TF at its time"))
             return None
-        contact = self._contact.latest(stamp) if self._has_contact else None
+        contact = self._contact.latest(stamp) if (self._has_contact or self._has_wrench) else None
         return Frame(
             index=index,
             stamp_ns=stamp,

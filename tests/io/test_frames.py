@@ -178,3 +178,24 @@ def test_unknown_image_encoding_in_a_log_names_file_topic_and_encoding(tmp_path)
         r"\(supported: rgb8, bgr8, .*\) \(stamp 1700000000000000000 ns\)",
     ):
         list(iter_frames(bad, SENSORS[:1], TOPICS))
+
+
+def test_contact_from_wrench_with_hysteresis(tmp_path):
+    """Without a Bool topic, contact comes from the force magnitude: on at >= 2 N, off at <= 1 N."""
+    path = tmp_path / "wrench.mcap"
+    forces = [0.0, 0.5, 1.5, 2.5, 1.5, 1.2, 0.9, 1.5, 3.0, 0.2]
+    expected = [False, False, False, True, True, True, False, False, True, False]
+    with LogWriter(path) as w:
+        w.write_tf([("world", "front_optical", np.eye(4))], T0, static=True)
+        for k, f in enumerate(forces):
+            t = T0 + k * 100 * MS
+            w.write_tf([("world", "ee", np.eye(4))], t)
+            w.write_wrench("/wrench", [0.0, f * 0.6, f * 0.8], [0.0, 0.0, 0.0], t, "ee")
+            w.write_camera_info("/cameras/front/camera_info", CAMERA, t, "front_optical")
+            w.write_image("/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical")
+    topics = LogTopics(contact=None, joint_states=None, ground_truth=None, wrench="/wrench")
+    frames = list(iter_frames(path, SENSORS[:1], topics))
+    assert [f.contact for f in frames] == expected
+    # with a Bool topic named but absent, the wrench is used as well
+    frames = list(iter_frames(path, SENSORS[:1], LogTopics(joint_states=None, ground_truth=None, wrench="/wrench")))
+    assert [f.contact for f in frames] == expected
