@@ -285,7 +285,7 @@ def write_scene_config(object_name: str, path: Path) -> Path:
     text = (
         f"# mvtop config for the simulated {object_name} scene (mvtop simulate --object {object_name}).\n"
         "# Units: metres and degrees as the key names say; mesh paths are relative to this file.\n"
-        + yaml.safe_dump(scene_config(object_name), sort_keys=False)
+        + yaml.safe_dump(scene_config(object_name), sort_keys=False, default_flow_style=None)
     )
     with atomic_output(path) as fh:
         fh.write(text.encode())

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mvtop_cli.filter.scoring import sensor_weights, visuo_tactile_log_score
+from mvtop_cli.filter.scoring import sensor_weights, visuo_tactile_log_score, visuo_tactile_score
 
 
 def _direct(iou_t, iou_v, gamma, nu, tau):
@@ -83,3 +83,17 @@ def test_log_score_rejects_bad_inputs():
         visuo_tactile_log_score(iou, None, np.array([-1.0]), None, 0.1)
     with pytest.raises(ValueError, match="at least one"):
         visuo_tactile_log_score(None, None, None, None, 0.1)
+
+
+def test_score_is_eq2_and_independent_of_the_other_particles():
+    rng = np.random.default_rng(7)
+    iou_t, iou_v = rng.random((8, 2)), rng.random((8, 2))
+    iou_v[:, 1] = np.nan  # an absent camera: the others share its weight
+    s = visuo_tactile_score(iou_t, iou_v)
+    # defaults: 1/2 per modality over the sensors present -> 1/4 per tactile sensor, 1/2 for the camera
+    np.testing.assert_allclose(s, 0.25 * iou_t.sum(axis=1) + 0.5 * iou_v[:, 0], rtol=1e-12)
+    # scoring a subset gives the same values (unlike eq. 1's softmax over the batch) ...
+    np.testing.assert_allclose(visuo_tactile_score(iou_t[:3], iou_v[:3]), s[:3], rtol=1e-12)
+    # ... and the log-score is the same up to the batch's normalising constant
+    log_s = visuo_tactile_log_score(iou_t, iou_v, None, None, 0.01)
+    np.testing.assert_allclose(log_s - s / 0.01, (log_s - s / 0.01)[0], atol=1e-9)

@@ -39,3 +39,11 @@ def test_sample_log_pairs_with_its_config(name):
 def test_sample_logs_fit_in_git():
     total = sum(p.stat().st_size for p in (REPO / "sample_logs").glob("*.mcap"))
     assert total < 30_000_000
+
+
+def test_real_setup_template_loads_and_checks_a_log():
+    cfg = load_config(REPO / "configs" / "template_realsense_gelsight.yaml")
+    assert cfg.topics.ground_truth is None and cfg.masking.camera.backend == "classical"
+    # the template's layout is the simulator's: the sample log satisfies it
+    report = inspect_log(REPO / "sample_logs" / "conn1.mcap", cfg.required_topics(), cfg.required_frames())
+    assert report.ok, report
