@@ -133,6 +133,13 @@ class FramesConfig:
 
 
 @dataclass(frozen=True)
+class RobotConfig:
+    """The robot model, for logs that record joint states but not the end effector's TF."""
+
+    urdf: Path | None = field(default=None, metadata={"doc": "URDF whose links are added to TF from /joint_states"})
+
+
+@dataclass(frozen=True)
 class GraspPrior:
     """Prior over the object in the end effector, ``T_ee_object``: nominal pose and spread."""
 
@@ -193,6 +200,7 @@ class Config:
     environment: tuple[EnvironmentMesh, ...] = ()
     topics: TopicsConfig = TopicsConfig()
     frames: FramesConfig = FramesConfig()
+    robot: RobotConfig = RobotConfig()
     grasp_prior: GraspPrior = GraspPrior()
     masking: MaskingConfig = MaskingConfig()
     filter: FilterConfig = FilterConfig()
@@ -212,6 +220,8 @@ class Config:
             req[tac.info_topic] = "sensor_msgs/msg/CameraInfo"
             if tac.depth_topic:
                 req[tac.depth_topic] = "sensor_msgs/msg/Image"
+        if self.robot.urdf is not None and self.topics.joint_states:
+            req[self.topics.joint_states] = "sensor_msgs/msg/JointState"
         if self.topics.contact and "contact" in self.modalities:
             req[self.topics.contact] = "std_msgs/msg/Bool"
         elif self.topics.wrench and "contact" in self.modalities:
@@ -384,6 +394,8 @@ def _check_semantics(cfg: Config) -> None:
     for key, path in meshes:
         if not path.is_file():
             raise _Invalid(key, f"mesh file not found: {path}")
+    if cfg.robot.urdf is not None and not cfg.robot.urdf.is_file():
+        raise _Invalid("robot.urdf", f"URDF file not found: {cfg.robot.urdf}")
     if cfg.contact.force_off_n >= cfg.contact.force_on_n:
         raise _Invalid("contact.force_off_n", "expected a value below contact.force_on_n (hysteresis)")
     f = cfg.filter

@@ -90,6 +90,9 @@ class LogTopics:
     wrench: str | None = None
     contact_force_on_n: float = 2.0
     contact_force_off_n: float = 1.0
+    # A URDF for logs without the end effector's TF: its links are added to TF from the
+    # joint states (forward kinematics), rooted at the URDF's base link.
+    urdf: str | None = None
 
 
 def header_stamp_ns(msg: Any, log_time_ns: int) -> int:
@@ -295,6 +298,9 @@ class FrameReader:
 
         self._contact = _Series()
         touching = False  # hysteresis state of a force-based contact signal
+        js_t: list[int] = []
+        js_names: list[list[str]] = []
+        js_pos: list[list[float]] = []
         self._finger = _Series()
         gt_t: list[int] = []
         gt_v: list[np.ndarray] = []
@@ -320,6 +326,10 @@ class FrameReader:
                     touching = False
                 self._contact.add(header_stamp_ns(msg, m.log_time_ns), float(touching))
             elif m.topic == t.joint_states:
+                if t.urdf is not None:
+                    js_t.append(header_stamp_ns(msg, m.log_time_ns))
+                    js_names.append([str(n) for n in msg.name])
+                    js_pos.append([float(v) for v in msg.position])
                 # JointState may leave position empty (names only): zip stops at the shorter.
                 fingers = [p for n, p in zip(msg.name, msg.position) if "finger" in n.lower()]
                 if fingers:
@@ -347,6 +357,14 @@ class FrameReader:
                         self._info_frame.setdefault(name, str(msg.header.frame_id).lstrip("/"))
         self._contact.finish()
         self._finger.finish()
+        if t.urdf is not None:
+            if not js_t:
+                raise LogError(f"{self.log.path}: a URDF is configured but {t.joint_states!r} has no joint states")
+            from .urdf import UrdfKinematics
+
+            kin = UrdfKinematics(t.urdf)
+            known = {f for f in self.tf.frames if self.tf.parent(f) is not None}
+            kin.add_to_tf(self.tf, js_t, js_names, js_pos, skip=known)
         self._gt: PoseSeries | None = None
         if gt_t:
             v = np.stack(gt_v)

@@ -199,3 +199,52 @@ def test_contact_from_wrench_with_hysteresis(tmp_path):
     # with a Bool topic named but absent, the wrench is used as well
     frames = list(iter_frames(path, SENSORS[:1], LogTopics(joint_states=None, ground_truth=None, wrench="/wrench")))
     assert [f.contact for f in frames] == expected
+
+
+URDF = """<robot name="test_arm">
+<link name="base"/><link name="slider"/><link name="ee"/>
+<joint name="lift" type="prismatic"><parent link="base"/><child link="slider"/>
+  <origin xyz="0 0 0.5" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+<joint name="wrist" type="revolute"><parent link="slider"/><child link="ee"/>
+  <origin xyz="0.1 0 0" rpy="3.14159265358979 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+</robot>"""
+
+
+def test_end_effector_from_joint_states_and_urdf(tmp_path):
+    """No ee TF in the log: forward kinematics of the URDF from /joint_states gives T_world_ee,
+    interpolated at the image times like any TF edge."""
+    from scipy.spatial.transform import Rotation
+
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(URDF)
+    path = tmp_path / "joints.mcap"
+    T_world_base = np.eye(4)
+    T_world_base[:3, 3] = [0.3, -0.2, 0.0]
+
+    def joints(t_s: float) -> tuple[float, float]:
+        return 0.05 + 0.1 * t_s, 0.4 * t_s  # lift [m], wrist [rad]
+
+    def ee_expected(t_s: float) -> np.ndarray:
+        lift, wrist = joints(t_s)
+        T = np.eye(4)
+        T[:3, 3] = [0.1, 0.0, 0.5 + lift]
+        T[:3, :3] = Rotation.from_euler("x", np.pi).as_matrix() @ Rotation.from_euler("z", wrist).as_matrix()
+        return T_world_base @ T
+
+    with LogWriter(path) as w:
+        w.write_tf([("world", "base", T_world_base), ("world", "front_optical", np.eye(4))], T0, static=True)
+        for k in range(21):  # joint states at 100 Hz
+            t = T0 + k * 10 * MS
+            w.write_joint_state("/joint_states", ["lift", "wrist", "finger_left_joint"], [*joints(k * 0.01), 0.01], t)
+        for k in range(4):  # images at 15 ms offsets: between joint samples
+            t = T0 + 15 * MS + k * 50 * MS
+            w.write_camera_info("/cameras/front/camera_info", CAMERA, t, "front_optical")
+            w.write_image("/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical")
+    topics = LogTopics(tf="/tf", contact=None, ground_truth=None, urdf=str(urdf))
+    frames = list(iter_frames(path, SENSORS[:1], topics))
+    assert len(frames) == 4
+    for f in frames:
+        t_s = (f.stamp_ns - T0) / 1e9
+        # interpolation between 10 ms samples of a linear/constant-rate motion is exact
+        np.testing.assert_allclose(f.T_world_ee, ee_expected(t_s), atol=1e-9)
+        assert f.finger_opening_m == pytest.approx(0.01)
