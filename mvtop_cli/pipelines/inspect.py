@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+
+import numpy as np
 
 from ..io import ros2_msgs as rm
 from ..io.mcap_reader import LogSummary, McapLog
@@ -28,6 +30,7 @@ class InspectReport:
     tf_frames: tuple[str, ...] | None
     required_frames: tuple[str, ...]
     missing_frames: tuple[str, ...]
+    timing: dict[str, dict] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -85,6 +88,12 @@ def inspect_log(
                 empty.append(topic)
         do_tf = bool(required_frames) if scan_tf is None else scan_tf
         frames = _tf_frames(log) if do_tf else None
+        image_topics = [
+            t for t, e in required_topics.items()
+            if rm.normalize_type(e or "") in (rm.IMAGE, rm.COMPRESSED_IMAGE) and t not in missing and t not in empty
+            and not any(t == w[0] for w in wrong)
+        ]
+        timing = _image_timing(log, image_topics) if image_topics else {}
     missing_frames = tuple(f for f in required_frames if frames is None or f.lstrip("/") not in frames)
     return InspectReport(
         summary=summary,
@@ -95,7 +104,31 @@ def inspect_log(
         tf_frames=frames,
         required_frames=tuple(required_frames),
         missing_frames=missing_frames,
+        timing=timing,
     )
+
+
+def _image_timing(log: McapLog, topics: list[str]) -> dict[str, dict]:
+    """Per image topic: rate [Hz], median period and largest gap [s], frames presumed dropped
+    (gaps longer than 1.5 periods), and whether its rate differs from the fastest sensor's by
+    more than 10 % (sensors at different rates are fine for the estimator, but worth knowing)."""
+    times: dict[str, list[int]] = {t: [] for t in topics}
+    for m in log.messages(topics, decode=False):
+        times[m.topic].append(m.log_time_ns)
+    out = {}
+    for topic, ts in times.items():
+        t = np.sort(np.asarray(ts, dtype=np.int64))
+        if len(t) < 3:
+            continue
+        d = np.diff(t) * 1e-9
+        period = float(np.median(d))
+        dropped = int(np.sum(np.maximum(np.rint(d / period) - 1, 0))) if period > 0 else 0
+        out[topic] = {"rate_hz": 1.0 / period if period > 0 else None, "period_s": period,
+                      "max_gap_s": float(d.max()), "dropped": dropped}
+    rates = [v["rate_hz"] for v in out.values() if v["rate_hz"]]
+    for v in out.values():
+        v["rate_mismatch"] = bool(rates and v["rate_hz"] and v["rate_hz"] < 0.9 * max(rates))
+    return out
 
 
 def _time(ns: int | None) -> str:
@@ -160,6 +193,18 @@ def format_report(report: InspectReport) -> str:
     lines += _table(["topic", "type", "count", "rate Hz", "span s", "check"], rows, right={2, 3, 4})
     if report.tf_frames is not None:
         lines += ["", f"TF frames:   {', '.join(report.tf_frames) or '(none)'}"]
+    if report.timing:
+        rows = []
+        for topic, v in report.timing.items():
+            notes = []
+            if v["dropped"]:
+                notes.append(f"{v['dropped']} dropped (gap up to {v['max_gap_s']:.3f} s)")
+            if v["rate_mismatch"]:
+                notes.append("slower than the fastest sensor")
+            rows.append([topic, "-" if not v["rate_hz"] else f"{v['rate_hz']:.2f}", f"{v['max_gap_s']:.3f}",
+                         "; ".join(notes) or "ok"])
+        lines += ["", "image timing (frames are formed from whatever arrives; these are notes, not errors):"]
+        lines += _table(["topic", "rate Hz", "max gap s", "note"], rows, right={1, 2})
     if need or report.required_frames:
         lines.append("")
         problems = []

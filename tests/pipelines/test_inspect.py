@@ -115,3 +115,28 @@ def test_unreadable_log_raises(tmp_path):
     bad.write_bytes(b"not mcap at all")
     with pytest.raises(LogError, match=r"x\.mcap: not an MCAP file"):
         inspect_log(bad)
+
+
+def test_inspect_reports_dropped_frames_and_rate_mismatch(tmp_path):
+    import numpy as np
+
+    from mvtop_cli.geometry.camera import PinholeCamera
+    from mvtop_cli.io.mcap_writer import LogWriter
+    from mvtop_cli.pipelines.inspect import format_report, inspect_log
+
+    path = tmp_path / "rates.mcap"
+    t0, ms = 1_700_000_000_000_000_000, 1_000_000
+    img = np.zeros((4, 6, 3), np.uint8)
+    with LogWriter(path) as w:
+        for k in range(20):  # front: 10 Hz, frames 7 and 8 dropped
+            if k not in (7, 8):
+                w.write_image("/cameras/front/image", img, t0 + k * 100 * ms, "front_optical")
+        for k in range(10):  # side: 5 Hz
+            w.write_image("/cameras/side/image", img, t0 + k * 200 * ms, "side_optical")
+    need = {"/cameras/front/image": "sensor_msgs/msg/Image", "/cameras/side/image": "sensor_msgs/msg/Image"}
+    report = inspect_log(path, need)
+    front, side = report.timing["/cameras/front/image"], report.timing["/cameras/side/image"]
+    assert front["dropped"] == 2 and abs(front["max_gap_s"] - 0.3) < 1e-9 and abs(front["rate_hz"] - 10) < 1e-6
+    assert side["dropped"] == 0 and side["rate_mismatch"] and not front["rate_mismatch"]
+    text = format_report(report)
+    assert "2 dropped (gap up to 0.300 s)" in text and "slower than the fastest sensor" in text
