@@ -25,9 +25,9 @@ from ..geometry import se3
 from ..io.atomic import atomic_output, atomic_path
 from ..io.frames import FrameReader
 from ..io.mcap_reader import McapLog
-from ..masking.classical import ClassicalCameraBackend
 from ..render.roi import Roi
-from .estimate import TACTILE_DEPTH_THRESHOLD_M, log_topics, sensor_topics
+from .estimate import log_topics, sensor_topics
+from .observe import TACTILE_DEPTH_THRESHOLD_M, Observer
 from .scene_model import OBJECT_ID, SceneModel
 
 OBSERVED_BGR = (255, 120, 0)  # blue (paper figure 6: predicted mask)
@@ -101,7 +101,7 @@ def render_masks(
     ``out_dir``; returns the content of masks.json."""
     scene = SceneModel(cfg, build_contact=False)
     track = read_track_poses(track_dir) if track_dir is not None else None
-    camera_backend = ClassicalCameraBackend()
+    observer = Observer(cfg)
     gel = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -140,10 +140,10 @@ def render_masks(
 
                 at_est, at_gt = render(T_est), render(T_gt)
                 if tactile:
-                    observed = img.depth > TACTILE_DEPTH_THRESHOLD_M if img.depth is not None else None
-                else:
+                    observed = observer.tactile_mask(img)
+                else:  # the estimator's promptable mode at the reference pose
                     prompt = render(T_ref)
-                    observed = camera_backend.prompt(img.image, prompt) if prompt.any() else None
+                    observed = observer.camera_prompt(img, prompt) if prompt.any() else None
                 rendered = at_est if at_est is not None else at_gt
                 rec = {
                     "iou_estimate": None if observed is None or at_est is None else iou(observed, at_est),
