@@ -53,4 +53,4 @@ def cross_entropy_search(
 
 
 def _finite(ll: np.ndarray) -> np.ndarray:
-    return np.nan_to_num(np.asarray(ll, dtype=np.float64), nan=-np.inf, posinf=-np.inf)
+    return np.nan_to_num(np.asarray(ll, dtype=np.float64), nan=-np.inf, posinf=-np.inf, neginf=-np.inf)

@@ -36,14 +36,13 @@ from ..io.atomic import atomic_output
 from ..io.frames import LogTopics, SensorTopics, FrameReader
 from ..io.mcap_reader import McapLog
 from ..io.mcap_writer import LogWriter
-from ..masking.classical import ClassicalCameraBackend
 from ..masking.belief import belief_probability, grabcut_from_belief
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
+from .observe import TACTILE_DEPTH_THRESHOLD_M, Observer
 from .scene_model import OBJECT_ID, SceneModel
 
-TACTILE_DEPTH_THRESHOLD_M = 2e-5  # indentation below this is the undeformed gel
 _CANDIDATES = 96  # candidate poses for Algorithm 1 (mask selection)
 _CONVERGED_TRANSLATION_M = 5e-4  # belief spread below which cameras may switch to prompt mode
 _CONVERGED_ROTATION_RAD = np.radians(1.5)
@@ -56,8 +55,6 @@ _PROMPT_MODE = False
 _PARTICLES_IN_TRACK = 200  # particles written per frame to track.mcap
 _INIT_FACTOR = 6  # prior samples per particle in each of the first frame's coarse searches
 _FIRST_FRAME_ITERATION_FACTOR = 3  # refine iterations on the first frame (and after a re-search)
-# Share of eq. 2's importance weights given to the tactile sensors when the config leaves the
-# weights unset and both modalities are present (the paper weights modalities equally).
 _TACTILE_SHARE = 0.5
 # Re-search check (see Estimator._filter_frame): a short cross-entropy search from the belief
 # widened by these sigmas; a frame is redone from the searched population when the search
@@ -67,6 +64,9 @@ _CHECK_SIGMA_TRANSLATION_M = 1e-3
 _CHECK_SIGMA_ROTATION_RAD = float(np.radians(3.0))
 _CHECK_ROUNDS = 3
 _RESEARCH_MARGIN = 10.0
+# The searches stay within this many times the grasp prior's half-widths of the nominal grasp
+# (twice as many sigmas for a gaussian prior): room for slip beyond the prior, no more.
+_SEARCH_BOUND = 2.0
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,9 @@ def log_topics(cfg: Config) -> LogTopics:
         tf=t.tf, tf_static=t.tf_static, contact=t.contact if "contact" in cfg.modalities else None,
         joint_states=t.joint_states, ground_truth=t.ground_truth, world_frame=cfg.frames.world,
         ee_frame=cfg.frames.ee, sync_tolerance_ns=int(round(cfg.sync_tolerance_s * 1e9)),
+        wrench=t.wrench if "contact" in cfg.modalities else None,
+        contact_force_on_n=cfg.contact.force_on_n, contact_force_off_n=cfg.contact.force_off_n,
+        urdf=None if cfg.robot.urdf is None else str(cfg.robot.urdf),
     )
 
 
@@ -133,7 +136,7 @@ class Estimator:
             f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg),
         )
         self.pf = ParticleFilter(self.motion, f.resampling, f.ess_threshold, self.rng, refine_iterations=f.refine_iterations)
-        self.camera_backend = ClassicalCameraBackend(**cfg.masking.camera.options)
+        self.observer = Observer(cfg)
         self.particles: ParticleSet | None = None
         self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
         self.camera_weights = {c.name: c.weight for c in cfg.sensors.cameras}
@@ -158,14 +161,16 @@ class Estimator:
         """N particles from a scored search population: weights ``L^b`` with the largest
         ``b`` that keeps an effective sample size of N, then resampling."""
         n = self.cfg.filter.num_particles
+        finite = np.isfinite(ll)
+        ll = np.where(finite, ll - np.max(ll[finite]), -np.inf) if finite.any() else ll
         lo, hi = 0.0, 1.0
-        for _ in range(30):  # largest tempering exponent that keeps ESS >= n
+        for _ in range(30):  # largest tempering exponent that keeps ESS >= n (0: uniform over the finite)
             mid = 0.5 * (lo + hi)
             if ess_from_log_weights(mid * ll) >= n:
                 lo = mid
             else:
                 hi = mid
-        weighted = ParticleSet(poses, np.where(np.isfinite(ll), lo * ll, -np.inf))
+        weighted = ParticleSet(poses, np.where(finite, lo * np.where(finite, ll, 0.0), -np.inf))
         return resample(weighted, self.cfg.filter.resampling, self.rng, n_out=n)
 
     def _initial_search(self, log_likelihood) -> ParticleSet:
@@ -193,6 +198,26 @@ class Estimator:
         start = perturb_about_origin(particles.poses[idx], dt, dw)
         return cross_entropy_search(start, log_likelihood, self.rng, rounds=_CHECK_ROUNDS)
 
+    def _within_prior(self, T_ee_obj: np.ndarray) -> np.ndarray:
+        """(N,) bool: poses within ``_SEARCH_BOUND`` times the grasp prior's half-widths
+        (uniform) or sigmas (gaussian) of the nominal grasp, per ee axis."""
+        g = self.cfg.grasp_prior
+        T_nom = g.pose.matrix()
+        dt = np.abs(T_ee_obj[:, :3, 3] - T_nom[:3, 3])
+        dw = np.abs(se3.matrix_to_rotvec(T_ee_obj[:, :3, :3] @ T_nom[:3, :3].T))
+        k = _SEARCH_BOUND if g.distribution == "uniform" else 2.0 * _SEARCH_BOUND
+        return np.all(dt <= k * g.translation_m, axis=1) & np.all(dw <= k * np.radians(g.rotation_deg), axis=1)
+
+    def _bounded(self, log_likelihood):
+        """``log_likelihood`` restricted to the grasp prior's region: the searches draw from
+        Gaussians fitted to their elites, which a likelihood that is flat in some direction
+        (one modality alone) lets wander far outside any plausible grasp."""
+
+        def fn(T_ee_obj: np.ndarray) -> np.ndarray:
+            return np.where(self._within_prior(T_ee_obj), log_likelihood(T_ee_obj), -np.inf)
+
+        return fn
+
     def _filter_frame(self, ps: ParticleSet, first: bool, contact, log_likelihood):
         """Predict + refine (first frame: global search + refine), then the re-search check:
         if a search finds a pose whose log-likelihood beats both the estimate and the best
@@ -201,15 +226,16 @@ class Estimator:
         then redone from the searched population and its result kept if its estimate fits
         better."""
         f = self.cfg.filter
-        predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
+        search_ll = self._bounded(log_likelihood)
+        predicted = self._initial_search(search_ll) if first else self.pf.predict(ps, bool(contact))
         iterations = f.refine_iterations * (_FIRST_FRAME_ITERATION_FACTOR if first else 1)
         result = self.pf.refine(predicted, log_likelihood, iterations, self.pf.refine_shrink)
         if not _RESEARCH:
             return result
         if first:  # multi-start: a second, independent global search
-            poses, ll = cross_entropy_search(self._prior_samples(f.num_particles * _INIT_FACTOR), log_likelihood, self.rng)
+            poses, ll = cross_entropy_search(self._prior_samples(f.num_particles * _INIT_FACTOR), search_ll, self.rng)
         else:
-            poses, ll = self._local_search(result.particles, log_likelihood)
+            poses, ll = self._local_search(result.particles, search_ll)
         if not np.isfinite(ll).any():
             return result
         best = poses[int(np.argmax(ll))]
@@ -229,11 +255,7 @@ class Estimator:
     # --- observed masks ------------------------------------------------------------------
 
     def _tactile_mask(self, img: SensorImage) -> np.ndarray:
-        if img.depth is not None:
-            return np.asarray(img.depth) > TACTILE_DEPTH_THRESHOLD_M
-        raise EstimationError(
-            f"tactile sensor {img.sensor!r} has no depth topic; set sensors.tactile[].depth_topic"
-        )
+        return self.observer.tactile_mask(img)
 
     def _camera_masks(self, frame: Frame, rois: dict[str, Roi], occluders: dict, converged: bool) -> tuple[dict, str]:
         """Observed camera masks in each camera's ROI: Algorithm 1-2 over the classical
@@ -249,7 +271,7 @@ class Estimator:
                 T = se3.invert(img.T_world_sensor) @ est
                 full = Roi.full(img.camera)
                 prompt = self.scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, full, occluders[name])[0]
-                out[name] = rois[name].crop(self.camera_backend.prompt(img.image, prompt)) if prompt.any() else None
+                out[name] = rois[name].crop(self.observer.camera_prompt(img, prompt)) if prompt.any() else None
             return out, "prompt"
         w = ps.weights()
         idx = np.argsort(-w, kind="stable")[:_CANDIDATES]
@@ -260,7 +282,7 @@ class Estimator:
             T = se3.invert(img.T_world_sensor) @ cand
             rendered[name] = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders[name])
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
-            props = [roi.crop(p) for p in self.camera_backend.proposals(img.image, box)]
+            props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
             prob = belief_probability(rendered[name], w[idx])
             belief = grabcut_from_belief(roi_image(img.image, roi), prob, seed=self.cfg.filter.seed)
             proposals[name] = ([belief] if belief is not None else []) + props
@@ -339,6 +361,7 @@ class Estimator:
                 score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
             return score
 
+        # kept for diagnostics: the likelihood (and IoUs) at any pose, e.g. the ground truth's
         self.last_log_likelihood, self.last_ious = log_likelihood, ious
         if not tac_names and not cam_names and not contact:
             result = self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
@@ -440,6 +463,7 @@ def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed:
         "log": str(log_path),
         "object": cfg.object.name,
         "modalities": list(cfg.modalities),
+        "masking": {"camera": cfg.masking.camera.backend, "tactile": cfg.masking.tactile.backend},
         "particles": cfg.filter.num_particles,
         "seed": cfg.filter.seed,
         "frames_processed": len(results),

@@ -62,13 +62,15 @@ class SceneModel:
             return
         meshes = [p.mesh for p in fixed]
         poses = np.stack([p.T_frame_mesh for p in fixed])
-        # The grid covers the smaller fixed parts (receptacles, fixtures) with a margin of one
-        # object size; a part larger than 0.3 m (a table) bounds it only near the others.
+        # The grid covers the receptacle-sized fixed parts (under 10 cm: receptacles, fixtures,
+        # not the board or table they stand on, whose top face inside the box is still in the
+        # grid) with a 5 mm margin: contact happens there; farther out phi is only needed to be
+        # large, and the grid's continuation beyond its box (value + distance) gives that.
         boxes = [trimesh.transformations.transform_points(m.bounds, T) for m, T in zip(meshes, poses)]
-        small = [b for b in boxes if np.max(b[1] - b[0]) < 0.3] or boxes
+        small = [b for b in boxes if np.max(b.max(axis=0) - b.min(axis=0)) < 0.1] or boxes
         lo = np.min([b.min(axis=0) for b in small], axis=0)
         hi = np.max([b.max(axis=0) for b in small], axis=0)
-        margin = float(np.max(self.object_mesh.extents)) + 0.005
+        margin = 0.005
         bounds = np.stack([lo - margin, hi + margin])
         res = self.cfg.contact.sdf_resolution_m
         cells = np.prod((bounds[1] - bounds[0]) / res)

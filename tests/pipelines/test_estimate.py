@@ -93,9 +93,11 @@ def test_final_frame_within_1mm_and_1deg(name, tmp_path):
 
 
 def _short_run(out: Path, seed: int = 3) -> dict:
+    """Three frames, few particles; without the contact modality, whose signed-distance
+    field takes longer to build than these frames take to filter."""
     log_path, cfg_path = paths("conn2")
     return estimate(log_path, load_config(cfg_path), out,
-                    EstimateOptions(num_particles=120, seed=seed, max_frames=3))
+                    EstimateOptions(modalities=("vision", "tactile"), num_particles=120, seed=seed, max_frames=3))
 
 
 def test_same_seed_gives_identical_track(tmp_path):
@@ -120,7 +122,7 @@ def test_output_files_and_columns(tmp_path):
         assert len(row) == len(TRACK_COLUMNS)
         q = np.array([float(v) for v in row[5:9]])
         assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-6)
-        assert row[19] in ("0", "1")
+        assert row[19] == ""  # contact is not a modality of this run
         assert row[20] in ("proposals", "prompt")
         assert float(row[16]) >= 0 and float(row[18]) > 0
     on_disk = json.loads((out / "summary.json").read_text())
