@@ -159,8 +159,12 @@ class BackendConfig:
 
 @dataclass(frozen=True)
 class MaskingConfig:
+    """Masking backends per modality; ``prompt_when_converged`` switches the cameras to the
+    paper's promptable mode (a mask prompted at the estimate) once the belief has converged."""
+
     camera: BackendConfig = BackendConfig("classical")
     tactile: BackendConfig = BackendConfig("difference")
+    prompt_when_converged: bool = False
 
 
 @dataclass(frozen=True)

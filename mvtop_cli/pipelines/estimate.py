@@ -46,12 +46,12 @@ from .scene_model import OBJECT_ID, SceneModel
 _CANDIDATES = 96  # candidate poses for Algorithm 1 (mask selection)
 _CONVERGED_TRANSLATION_M = 5e-4  # belief spread below which cameras may switch to prompt mode
 _CONVERGED_ROTATION_RAD = np.radians(1.5)
-# The paper's promptable mode (camera masks prompted at the converged estimate) is off: on the
+# The paper's promptable mode (camera masks prompted at the converged estimate) is off by
+# default (config masking.prompt_when_converged): on the
 # sample logs its masks follow the estimate (a self-confirming bias) and lose the object's
 # thin or low-contrast parts near the receptacle; e.g. shaft_peg drifted 1-4 mm along its
 # axis during contact with it, 0.3-0.5 mm without (ground-truth IoU of the prompted masks
 # 0.74-0.85 vs 0.96-0.99 for Algorithm 1-2 over the proposals).
-_PROMPT_MODE = False
 _PARTICLES_IN_TRACK = 200  # particles written per frame to track.mcap
 _INIT_FACTOR = 6  # prior samples per particle in each of the first frame's coarse searches
 _FIRST_FRAME_ITERATION_FACTOR = 3  # refine iterations on the first frame (and after a re-search)
@@ -300,7 +300,7 @@ class Estimator:
         f = self.cfg.filter
         T_world_ee = frame.T_world_ee
         spread = ps.spread()
-        converged = _PROMPT_MODE and (not first) and spread.translation_rms_m < _CONVERGED_TRANSLATION_M and spread.rotation_rms_rad < _CONVERGED_ROTATION_RAD
+        converged = self.cfg.masking.prompt_when_converged and (not first) and spread.translation_rms_m < _CONVERGED_TRANSLATION_M and spread.rotation_rms_rad < _CONVERGED_ROTATION_RAD
 
         # ROIs and occluders from the predicted belief (fixed for the frame).
         occluders, rois, observed, cams = {}, {}, {}, {}
