@@ -141,3 +141,25 @@ def split_prompt(prompt: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray
     if arr.ndim == 2 and arr.shape[1] == 2:
         return None, arr.astype(np.float64)
     raise ValueError(f"prompt must be an {tuple(shape)} mask or (N, 2) pixel points, got shape {arr.shape}")
+
+
+def roi_window(roi_box: Any, shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Search window ``(x0, y0, x1, y1)`` (half-open columns and rows) clipped to an
+    ``(H, W)`` image. ``roi_box`` is None (whole image), a 4-sequence ``(x0, y0, x1, y1)``,
+    an object with ``x0, y0, width, height`` (a :class:`mvtop_cli.render.roi.Roi`), or a
+    :class:`MaskContext` (its ``roi_box``). Raises ValueError below 2 x 2 pixels."""
+    H, W = shape
+    if isinstance(roi_box, MaskContext):
+        roi_box = roi_box.roi_box
+    if roi_box is None:
+        return 0, 0, W, H
+    if all(hasattr(roi_box, a) for a in ("x0", "y0", "width", "height")):
+        x0, y0 = int(roi_box.x0), int(roi_box.y0)
+        x1, y1 = x0 + int(roi_box.width), y0 + int(roi_box.height)
+    else:
+        x0, y0, x1, y1 = (int(round(float(v))) for v in roi_box)
+    x0, x1 = max(0, min(x0, W)), max(0, min(x1, W))
+    y0, y1 = max(0, min(y0, H)), max(0, min(y1, H))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ValueError(f"roi_box {roi_box!r} leaves less than 2x2 pixels of the {W}x{H} image")
+    return x0, y0, x1, y1

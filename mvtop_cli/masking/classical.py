@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit
 
 from mvtop_cli.errors import ConfigError
+from mvtop_cli.masking.base import roi_window
 
 # GrabCut labels (cv2.GC_*), named here for readability.
 _BGD, _FGD, _PR_BGD, _PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD
@@ -176,26 +177,8 @@ class ClassicalOptions:
 
 
 def _box_of(roi_box, shape: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Search window ``(x0, y0, x1, y1)`` (half-open columns and rows) clipped to the image.
-
-    ``roi_box`` is None (whole image), a 4-sequence ``(x0, y0, x1, y1)``, or an object with
-    ``x0, y0, width, height`` such as :class:`mvtop_cli.render.roi.Roi`.
-    """
-    H, W = shape
-    if hasattr(roi_box, "roi_box") and hasattr(roi_box, "extras"):  # a masking.base.MaskContext
-        roi_box = roi_box.roi_box
-    if roi_box is None:
-        return 0, 0, W, H
-    if all(hasattr(roi_box, a) for a in ("x0", "y0", "width", "height")):
-        x0, y0 = int(roi_box.x0), int(roi_box.y0)
-        x1, y1 = x0 + int(roi_box.width), y0 + int(roi_box.height)
-    else:
-        x0, y0, x1, y1 = (int(round(float(v))) for v in roi_box)
-    x0, x1 = max(0, min(x0, W)), max(0, min(x1, W))
-    y0, y1 = max(0, min(y0, H)), max(0, min(y1, H))
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        raise ValueError(f"roi_box {roi_box!r} leaves less than 2x2 pixels of the {W}x{H} image")
-    return x0, y0, x1, y1
+    """Search window ``(x0, y0, x1, y1)`` clipped to the image (see ``base.roi_window``)."""
+    return roi_window(roi_box, shape)
 
 
 def _check_image(image: np.ndarray) -> np.ndarray:

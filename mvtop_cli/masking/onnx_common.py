@@ -219,25 +219,6 @@ def check_image(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def roi_window(roi_box: Any, shape: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Search window ``(x0, y0, x1, y1)`` (half-open columns and rows) clipped to an
-    ``(H, W)`` image; ``roi_box`` is None (whole image), a 4-sequence or an object with
-    ``x0, y0, width, height`` (a :class:`mvtop_cli.render.roi.Roi`)."""
-    H, W = shape
-    if roi_box is None:
-        return 0, 0, W, H
-    if all(hasattr(roi_box, a) for a in ("x0", "y0", "width", "height")):
-        x0, y0 = int(roi_box.x0), int(roi_box.y0)
-        x1, y1 = x0 + int(roi_box.width), y0 + int(roi_box.height)
-    else:
-        x0, y0, x1, y1 = (int(round(float(v))) for v in roi_box)
-    x0, x1 = max(0, min(x0, W)), max(0, min(x1, W))
-    y0, y1 = max(0, min(y0, H)), max(0, min(y1, H))
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        raise ValueError(f"roi_box {roi_box!r} leaves less than 2x2 pixels of the {W}x{H} image")
-    return x0, y0, x1, y1
-
-
 def image_key(image: np.ndarray, *extra: Any) -> tuple:
     """Cache key of an image's content (BLAKE2 digest of its bytes, shape) and ``extra``."""
     digest = hashlib.blake2b(np.ascontiguousarray(image).data, digest_size=16).digest()

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from mvtop_cli.errors import ConfigError
-from mvtop_cli.masking.base import MaskContext, register_backend, split_prompt
+from mvtop_cli.masking.base import MaskContext, register_backend, roi_window, split_prompt
 from mvtop_cli.masking.onnx_common import (
     LruCache,
     OnnxModel,
@@ -43,7 +43,6 @@ from mvtop_cli.masking.onnx_common import (
     image_key,
     mask_iou,
     options_from_mapping,
-    roi_window,
 )
 
 OUTPUTS = ("boxes", "labels", "scores", "masks")

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from mvtop_cli.errors import ConfigError
-from mvtop_cli.masking.base import MaskContext, register_backend, split_prompt
+from mvtop_cli.masking.base import MaskContext, register_backend, roi_window, split_prompt
 from mvtop_cli.masking.onnx_common import (
     LruCache,
     OnnxModel,
@@ -50,7 +50,6 @@ from mvtop_cli.masking.onnx_common import (
     options_from_mapping,
     paste,
     remove_small_regions,
-    roi_window,
     stability_score,
 )
 
