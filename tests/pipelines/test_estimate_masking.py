@@ -7,6 +7,8 @@ import csv
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from mvtop_cli.config import load_config
 from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
 
@@ -28,3 +30,34 @@ def test_prompt_mode_only_when_configured_and_converged(tmp_path):
     modes = _modes(tmp_path / "on")
     assert modes[0] == "proposals" and "prompt" in modes  # the first frame is never converged
     assert summary["frames_processed"] == 8
+
+
+def test_frames_with_a_missing_sensor_still_update(tmp_path):
+    """Drop the side camera's image in frames 1-3 and a tactile image in frame 4: every frame
+    is still estimated, with the sensors it has."""
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.io.mcap_writer import LogWriter
+    from mvtop_cli.pipelines.estimate import Estimator, log_topics, sensor_topics
+    from mvtop_cli.pipelines.scene_model import SceneModel
+    from mvtop_cli.io.frames import FrameReader
+
+    src = ROOT / "sample_logs" / "conn2.mcap"
+    gappy = tmp_path / "gappy.mcap"
+    t0 = 1_700_000_000_000_000_000
+    drop = {("/cameras/side/image/compressed", k) for k in (1, 2, 3)} | {("/tactile/left/depth", 4), ("/tactile/left/image/compressed", 4)}
+    with McapLog(src) as log, LogWriter(gappy) as w:
+        for m in log.messages(decode=False):
+            k = round((m.log_time_ns - t0) / 1e8)
+            if (m.topic, k) not in drop:
+                w.write_raw(m.topic, m.type, m.msg, m.log_time_ns, m.publish_time_ns)
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=100))
+    with McapLog(gappy) as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        est = Estimator(cfg, SceneModel(cfg), lambda f, t: reader.tf.lookup("world", f, t))
+        results = [est.step(fr) for fr, _ in zip(reader, range(6))]
+    sensors = [set(r.sensors) for r in results]
+    assert sensors[0] == {"front", "side", "left", "right"}
+    assert sensors[1] == sensors[2] == sensors[3] == {"front", "left", "right"}
+    assert sensors[4] == {"front", "side", "right"}
+    assert all(np.isfinite(r.T_world_object).all() for r in results)
