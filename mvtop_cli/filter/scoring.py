@@ -132,25 +132,9 @@ def visuo_tactile_log_score(
     """
     if not np.isfinite(temperature) or temperature <= 0:
         raise ValueError(f"temperature must be finite and > 0, got {temperature!r}")
-    tac = _iou_table(iou_tactile, None, "iou_tactile")
-    n = None if tac is None else tac.shape[0]
-    vis = _iou_table(iou_vision, n, "iou_vision")
-    if vis is not None:
-        n = vis.shape[0]
-    if n is None:
-        raise ValueError("at least one of iou_tactile and iou_vision must be given")
-    if tac is None:
-        tac = np.zeros((n, 0))
-    if vis is None:
-        vis = np.zeros((n, 0))
-    if n == 0:
+    score = visuo_tactile_score(iou_tactile, iou_vision, gamma, nu)
+    if len(score) == 0:
         raise ValueError("IoU tables have no particles (N = 0)")
-
-    g, v = sensor_weights(
-        ~np.all(np.isnan(tac), axis=0), ~np.all(np.isnan(vis), axis=0), gamma, nu
-    )
-    # eq. 2; isolated NaNs (and absent sensors, whose weight is 0) contribute nothing.
-    score = np.nan_to_num(tac, nan=0.0) @ g + np.nan_to_num(vis, nan=0.0) @ v
     # Shift by the best score before dividing: the log-softmax is unchanged, and the
     # logits stay small near the top, where precision matters, even for tiny tau.
     logits = (score - score.max()) / temperature
