@@ -425,7 +425,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
-    click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_session']:.0f} s in this session)")
+    click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_run']:.0f} s in this run)")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -113,7 +113,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                 if progress is not None:
                     progress(done, len(jobs))
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
-               "seconds_this_session": round(time.perf_counter() - t0, 1), "table": {}}
+               "seconds_this_run": round(time.perf_counter() - t0, 1), "table": {}}
     for method in options.methods:
         for obj in options.objects:
             rs = [r for (o, s, m), r in reports.items() if o == obj and m == method]
