@@ -38,6 +38,7 @@ from numba import njit
 
 from mvtop_cli.errors import ConfigError
 from mvtop_cli.masking.base import roi_window
+from mvtop_cli.masking.onnx_common import mask_nms
 
 # GrabCut labels (cv2.GC_*), named here for readability.
 _BGD, _FGD, _PR_BGD, _PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD
@@ -726,26 +727,11 @@ class ClassicalCameraBackend:
 
 def _dedup(masks: list[np.ndarray], merge_iou: float, limit: int) -> list[int]:
     """Indices of the first ``limit`` of ``masks`` (same shape, in order) that overlap no
-    earlier kept mask with IoU above ``merge_iou``."""
+    earlier kept mask with IoU above ``merge_iou`` (greedy NMS with rank as the score)."""
     if not masks:
         return []
-    bits = np.packbits(np.stack(masks).reshape(len(masks), -1).astype(bool), axis=1)
-    pad = (-bits.shape[1]) % 8
-    if pad:
-        bits = np.pad(bits, ((0, 0), (0, pad)))
-    words = bits.view(np.uint64)
-    areas = np.bitwise_count(words).sum(axis=1, dtype=np.int64)
-    kept: list[int] = []
-    for i in range(len(masks)):
-        if kept:
-            inter = np.bitwise_count(words[kept] & words[i]).sum(axis=1, dtype=np.int64)
-            union = np.maximum(areas[kept] + areas[i] - inter, 1)
-            if np.max(inter / union) > merge_iou:
-                continue
-        kept.append(i)
-        if len(kept) >= limit:
-            break
-    return kept
+    order_scores = -np.arange(len(masks), dtype=np.float64)
+    return [int(i) for i in mask_nms(np.stack(masks), order_scores, merge_iou)[:limit]]
 
 
 def _paste(mask: np.ndarray, box: tuple[int, int, int, int], shape: tuple[int, int]) -> np.ndarray:
