@@ -75,9 +75,11 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     out_dir = Path(out_dir)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     jobs = []
-    for obj in options.objects:
-        for i in range(options.poses):
-            seed = options.first_seed + i
+    # grasp-major order, so a partial (interrupted) benchmark holds the same grasps of every
+    # object and method, and its tables compare like with like
+    for i in range(options.poses):
+        seed = options.first_seed + i
+        for obj in options.objects:
             for method in options.methods:
                 run_dir = out_dir / "runs" / f"{obj}_{seed}_{method}"
                 jobs.append((obj, seed, method, run_dir))
@@ -101,12 +103,11 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
             if progress is not None:
                 progress(done, len(jobs))
     else:
-        # methods of one scene share its simulated log: run the first method of each scene
-        # before the others are submitted, so two workers never simulate the same scene
-        firsts = [j for j in todo if j[2] == options.methods[0]] + [j for j in todo if j[2] != options.methods[0]]
+        # methods of one scene share its simulated log; two workers may both simulate it, which
+        # is harmless: simulation is deterministic and the log is written atomically
         with ProcessPoolExecutor(max_workers=options.workers) as pool:
             futures = {pool.submit(_run_one, o, s, m, str(d), options.frames, options.particles, threads): (o, s, m)
-                       for o, s, m, d in firsts}
+                       for o, s, m, d in todo}
             for fut in as_completed(futures):
                 reports[futures[fut]] = fut.result()
                 done += 1
