@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import shlex
+import signal
 import sys
 from pathlib import Path
 
@@ -65,30 +67,65 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     if report.missing_frames:
         problems.append("missing TF frames " + ", ".join(report.missing_frames))
     if report.summary.truncated_at is not None:
-        problems.append(f"the file is truncated at byte {report.summary.truncated_at}")
+        cut_file, cut_at = report.summary.truncated_at
+        problems.append(f"{cut_file.name} is truncated at byte {cut_at} (expected a complete file with its footer)")
     if problems:
         raise MvtopError(f"{log}: " + "; ".join(problems))
 
 
 @contextlib.contextmanager
-def _progress(label: str):
-    """A progress bar on stderr (hidden when stderr is not a terminal); yields ``update(done, total)``."""
+def _progress(label: str, resumable: bool = False):
+    """A progress bar on stderr (hidden when stderr is not a terminal); yields ``update(done, total)``.
+
+    With ``resumable``, a first update that already reports work done (a resumed run) makes
+    the bar count from there: it shows ``done/total`` and an ETA from the remaining work only."""
     bar = None
+    start = 0
 
     def update(done: int, total: int) -> None:
-        nonlocal bar
+        nonlocal bar, start
         if not sys.stderr.isatty():
             return
         if bar is None:
-            bar = click.progressbar(length=total, label=label, file=sys.stderr, show_pos=True, show_eta=True)
+            start = done if resumable else 0
+            if start:
+                bar = click.progressbar(length=max(total - start, 1), label=f"{label} (resumed)", file=sys.stderr,
+                                        show_percent=False, show_eta=True, item_show_func=lambda item: item)
+                bar.current_item = f"{done}/{total}"
+            else:
+                bar = click.progressbar(length=total, label=label, file=sys.stderr, show_pos=True, show_eta=True)
             bar.__enter__()
-        bar.update(done - bar.pos)
+        bar.update(done - start - bar.pos, f"{done}/{total}" if start else None)
 
     try:
         yield update
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """While the body runs, SIGTERM raises ``checkpoint.Terminated`` (a KeyboardInterrupt) in
+    the main thread, so a terminated run cleans up and reports like Ctrl-C."""
+    from .pipelines.checkpoint import Terminated
+
+    def handler(signum, _frame):
+        raise Terminated(signum)
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave SIGTERM alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _signal_name(signum: int) -> str:
+    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
 
 
 def _check_output_path(out: Path, suffix: str | None = None) -> None:
@@ -122,22 +159,42 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 @click.option("--distortion", metavar="K1,K2,P1,P2,K3", help="Camera lens distortion (plumb_bob), e.g. -0.15,0.05,0,0,0.")
 @click.option("--noise", type=click.FloatRange(0, 50), default=2.0, show_default=True, help="Camera read noise [DN].")
 @click.option("--resolution", default="640x480", show_default=True, metavar="WxH", help="Camera resolution.")
-@click.option("--image-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True)
-@click.option("--tactile-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True)
+@click.option("--image-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True,
+              help="Camera images: sensor_msgs/CompressedImage (jpeg, png) on .../image/compressed, or raw "
+                   "sensor_msgs/Image rgb8 on .../image.")
+@click.option("--tactile-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True,
+              help="Tactile images, as --image-format.")
 @click.option("--jpeg-quality", type=click.IntRange(10, 100), default=90, show_default=True)
+@click.option("--kinematics", type=click.Choice(["ee-tf", "tf-chain", "joint-states"]), default="ee-tf", show_default=True,
+              help="How the log gives the end effector: ee-tf one world->ee transform; tf-chain a gantry robot's TF "
+                   "tree (world -> base_link -> six moving links -> flange -> tool0 -> ee); joint-states only "
+                   "/joint_states, with the robot's URDF written by --write-config (robot.urdf).")
+@click.option("--camera-every", type=click.IntRange(1, 10), default=1, show_default=True,
+              help="Cameras capture on every N-th frame only (2: half the tactile rate).")
+@click.option("--drop-fraction", type=click.FloatRange(0, 0.9), default=0.0, show_default=True,
+              help="Fraction of images lost at random (seeded), each camera and tactile image independently.")
+@click.option("--stamp-jitter-ms", type=click.FloatRange(0, 10), default=0.0, show_default=True,
+              help="Each sensor captures (and stamps) its image up to +-this far from the frame's time "
+                   "(within the config's default sync_tolerance_s of 20 ms).")
 @click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
               help="MCAP chunk compression.")
 @click.option("--write-config", type=click.Path(dir_okay=False, path_type=Path),
-              help="Also write the YAML config of the scene (meshes are referenced in configs/meshes).")
+              help="Also write the YAML config that pairs with the log, the meshes in meshes/ beside it and, with "
+                   "--kinematics joint-states, the robot's URDF beside it.")
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
 def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
                  slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
-                 jpeg_quality, compression, write_config, list_objects) -> None:
+                 jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
+                 list_objects) -> None:
     """Simulate a visuo-tactile insertion episode and write it as a ROS 2 MCAP log with ground truth.
 
     The object is grasped with a random in-hand offset, carried above its receptacle and lowered
     until it touches; two RGB cameras, two GelSight-like tactile sensors, TF, joint states, the
     contact flag, the wrench and the ground-truth object pose are recorded at 10 Hz.
+
+    To check a setup like yours, record the way it does: --image-format raw, --distortion,
+    --kinematics tf-chain or joint-states, --camera-every, --drop-fraction, --stamp-jitter-ms
+    (docs/recording.md); --write-config writes the config that reads such a log.
     """
     from .sim.objects import get_object, list_objects as names
 
@@ -172,6 +229,7 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
     _check_output_path(out, ".mcap")
     from .pipelines.simulate import SimulateOptions, simulate, write_scene_config
     from .sim.episode import EpisodeOptions
+    from .sim.timing import SensorTiming
 
     get_object(object_name)  # unknown names fail before any work
     options = SimulateOptions(
@@ -181,14 +239,15 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         ),
         width=width, height=height, noise_std=noise, exposure_jitter=exposure_jitter, low_contrast=low_contrast, object_rgb=rgb, distortion=dist,
         occluders=occluders, image_format=image_format, tactile_format=tactile_format, jpeg_quality=jpeg_quality,
-        compression=compression,
+        compression=compression, kinematics=kinematics,
+        timing=SensorTiming(camera_every=camera_every, drop_fraction=drop_fraction, jitter_s=stamp_jitter_ms / 1000.0),
     )
     with _progress(f"simulate {object_name}") as update:
         summary = simulate(object_name, seed, out, options, progress=update)
     click.echo(f"wrote {summary.path}: {summary.frames} frames ({summary.contact_frames} in contact), "
                f"{summary.bytes / 1e6:.1f} MB")
     if write_config is not None:
-        write_scene_config(object_name, write_config)
+        write_scene_config(object_name, write_config, options)
         click.echo(f"wrote {write_config}")
 
 
@@ -202,13 +261,22 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
 @click.option("--particles", type=click.IntRange(10, 1_000_000), help="Number of particles (default: the config's).")
 @click.option("--seed", type=click.IntRange(min=0), help="Random seed (default: the config's): same seed, same outputs.")
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
+@click.option("--resume", is_flag=True,
+              help="Continue an interrupted run from the checkpoint in --out, after its last completed frame "
+                   "(same log, config and options needed; the track is that of an uninterrupted run). Without "
+                   "--resume a checkpoint left in --out is discarded and the run starts at the first frame.")
 def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities: str | None, particles: int | None,
-                 seed: int | None, max_frames: int | None) -> None:
+                 seed: int | None, max_frames: int | None, resume: bool) -> None:
     """Estimate the object's pose in every frame of LOG and write the pose track to --out.
 
     Runs the M-VTOP particle filter: object masks from every camera and tactile image,
     render-and-compare scoring of each pose particle, the contact likelihood, and the
     weighted-mean estimate (see README.md for what is done beyond the paper).
+
+    Every completed frame is checkpointed in --out/.mvtop-checkpoint (removed when the run
+    completes). Stopped by Ctrl-C or SIGTERM, the run leaves no partly written output, says
+    how many frames are checkpointed and exits with 130 (Ctrl-C) or 143 (SIGTERM); add
+    --resume to the same command to continue (docs/long-runs.md).
     """
     from .config import MODALITIES, load_config
     from .pipelines.estimate import EstimateOptions, estimate
@@ -225,8 +293,33 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
     if out_dir.exists() and not out_dir.is_dir():
         raise MvtopError(f"{out_dir}: exists and is not a folder")
     options = EstimateOptions(modalities=mods, num_particles=particles, seed=seed, max_frames=max_frames)
-    with _progress(f"estimate {log.name}") as update:
-        summary = estimate(log, cfg, out_dir, options, progress=update)
+    from .pipelines.checkpoint import EstimateInterrupted
+
+    again = ["mvtop", "estimate", str(log), "--config", str(config_path), "--out", str(out_dir)]
+    for flag, value in (("--modalities", modalities), ("--particles", particles), ("--seed", seed),
+                        ("--max-frames", max_frames)):
+        if value is not None:
+            again += [flag, str(value)]
+    try:
+        with _sigterm_interrupts(), _progress(f"estimate {log.name}", resumable=True) as update:
+            summary = estimate(log, cfg, out_dir, options, progress=update, resume=resume)
+    except EstimateInterrupted as stop:
+        how = _signal_name(stop.signum)
+        if stop.frames_done == 0:
+            click.echo(f"mvtop: interrupted ({how}) before the first frame was completed; nothing to resume: "
+                       "run the same command again", err=True)
+        else:
+            where = (f"while writing the outputs; all {stop.frames_done} frames are checkpointed in"
+                     if stop.phase == "outputs" else
+                     f"after {stop.frames_done} of {stop.total} frames; checkpoint in")
+            click.echo(f"mvtop: interrupted ({how}) {where} {stop.checkpoint_dir}; resume with: "
+                       f"{shlex.join(again + ['--resume'])}", err=True)
+        sys.exit(128 + stop.signum)
+    except KeyboardInterrupt as stop:  # before the run's checkpoint existed
+        signum = int(getattr(stop, "signum", signal.SIGINT))
+        click.echo(f"mvtop: interrupted ({_signal_name(signum)}) before the first frame was completed; nothing to "
+                   "resume: run the same command again", err=True)
+        sys.exit(128 + signum)
     f = summary["final"]
     line = (f"wrote {out_dir}: {summary['frames_processed']} frames in {summary['run_time_s']:.1f} s; final spread "
             f"{1000 * f['translation_std_m']:.3f} mm, {f['rotation_std_deg']:.2f} deg")
@@ -234,8 +327,10 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
         line += (f"; error vs ground truth {f['ground_truth_translation_error_mm']:.3f} mm, "
                  f"{f['ground_truth_rotation_error_deg']:.2f} deg")
     click.echo(line)
-    for flag, count in summary["flags"].items():
-        click.echo(f"mvtop: warning: {flag} in {count} frame(s) (see summary.json)", err=True)
+    from .pipelines.estimate import warning_report
+
+    for line in warning_report(summary):  # one line per kind of failure (summary.json has every frame)
+        click.echo(f"mvtop: warning: {line} (see summary.json)", err=True)
 
 
 @cli.command("eval")
@@ -331,7 +426,7 @@ def render_masks_cmd(log: Path, config_path: Path | None, track_dir: Path | None
 
 @cli.group("benchmark")
 def benchmark_group() -> None:
-    """Measure speed on this machine."""
+    """Measure speed, accuracy and long-log memory on this machine."""
 
 
 @benchmark_group.command("speed")
@@ -402,30 +497,96 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
 @click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five).")
 @click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
-              help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact).")
+              help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
+                   "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
 @click.option("--particles", type=click.IntRange(10, 1_000_000), help="Particles (default: the config's).")
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, methods: str, frames: int,
                            particles: int | None, workers: int) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
-    estimated and evaluated; prints median / p95 final errors (figure 4) and insertion success
-    rates (table I) and writes them to OUT/summary.md and summary.json."""
-    from .pipelines.benchmark_accuracy import MODALITY_SETS, AccuracyOptions, format_table, run_accuracy
+    estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
+    rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
+    log-scale box plots of the errors per object and method in OUT/summary.html."""
+    from .pipelines.benchmark_accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
     from .sim.objects import get_object, list_objects
 
     objs = tuple(o.strip() for o in objects.split(",")) if objects else tuple(list_objects())
     for o in objs:
         get_object(o)
     meths = tuple(m.strip() for m in methods.split(","))
-    bad = [m for m in meths if m not in MODALITY_SETS]
+    bad = [m for m in meths if m not in METHODS]
     if bad:
-        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(MODALITY_SETS)})")
+        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
-    click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_run']:.0f} s in this run)")
+    click.echo(f"wrote {out_dir}/summary.md and summary.html ({summary['seconds_this_run']:.0f} s in this run)")
+
+
+@benchmark_group.command("long-log")
+@click.option("--size-gb", type=click.FloatRange(0.01, 100), default=2.0, show_default=True,
+              help="Size of the simulated log [GB, 1e9 bytes].")
+@click.option("--particles", type=click.IntRange(10, 1_000_000), default=200, show_default=True, help="Particles.")
+@click.option("--object", "object_name", default="cube", show_default=True, metavar="NAME", help="Object to simulate.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Simulation seed.")
+@click.option("--keep", type=click.Path(file_okay=False, path_type=Path),
+              help="Keep the log, config and track in this folder (a log made there before with the same "
+                   "object, seed and size is reused); default: a temporary folder, deleted afterwards.")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures (and the RSS samples) as JSON.")
+def benchmark_long_log_cmd(size_gb: float, particles: int, object_name: str, seed: int, keep: Path | None,
+                           as_json: bool) -> None:
+    """Memory and time of `mvtop estimate` on a long log: simulates one long insertion episode with
+    uncompressed images (about 2.9 MB per frame: the default 2 GB is about 690 frames; it takes
+    minutes to simulate), runs the estimate on it in a child process and prints the log size,
+    frames, peak resident memory, seconds per frame over the first and last quarter of the frames
+    (linear time: equal) and the total time."""
+    import json
+
+    from .pipelines.benchmark_long_log import LongLogOptions, benchmark_long_log
+    from .sim.objects import get_object
+
+    get_object(object_name)
+    options = LongLogOptions(size_gb=size_gb, particles=particles, object_name=object_name, seed=seed, keep=keep)
+    bars = contextlib.ExitStack()
+    updates: dict = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        if stage not in updates:  # one bar per stage, the previous one closed
+            bars.close()
+            updates[stage] = bars.enter_context(_progress(f"{stage} long log"))
+        updates[stage](done, total)
+
+    with bars:
+        result = benchmark_long_log(options, update)
+    log, est = result["log"], result["estimate"]
+    if as_json:
+        click.echo(json.dumps(result))
+        return
+    click.echo(f"log: {log['bytes'] / 1e9:.2f} GB, {log['frames']} frames at 10 Hz ({log['contact_frames']} in contact): "
+               f"simulated {object_name} episode (seed {seed}), per frame 2 raw rgb8 camera images 640x480, 2 raw "
+               f"rgb8 tactile images and 2 32FC1 depth maps, uncompressed chunks"
+               + (f"; reused from {result['folder']}" if log.get("reused") else ""))
+    click.echo(f"estimate: {est['frames']} frames, {particles} particles, {est['run_time_s']:.0f} s "
+               f"({est['run_time_s'] / est['frames']:.3f} s per frame; {est['wall_s']:.0f} s with process start)")
+    fq, lq = est["rss_first_quarter_mb"], est["rss_last_quarter_mb"]
+    click.echo(f"peak RSS: {est['peak_rss_mb']:.0f} MB (getrusage of the child); median RSS over the first / last "
+               f"quarter of the frames: {fq or float('nan'):.0f} / {lq or float('nan'):.0f} MB")
+    def pair(first: str, last: str) -> str:
+        a, b = est[first], est[last]
+        if a is None or b is None:
+            return "n/a"
+        return f"{a:.3f} / {b:.3f} (ratio {b / a:.2f})"
+
+    click.echo(f"seconds per frame, first / last quarter of the frames: wall {pair('s_per_frame_first_quarter', 's_per_frame_last_quarter')}"
+               f", CPU {pair('cpu_s_per_frame_first_quarter', 'cpu_s_per_frame_last_quarter')}")
+    click.echo(f"seconds per frame, first / last half of the contact phase (frames {est['contact_from_frame']}-"
+               f"{est['frames'] - 1}): wall {pair('s_per_frame_contact_first_half', 's_per_frame_contact_last_half')}, "
+               f"CPU {pair('cpu_s_per_frame_contact_first_half', 'cpu_s_per_frame_contact_last_half')}")
+    click.echo(f"checkpoint: {est['checkpoint_ms_per_frame']} ms per frame")
+    if result["folder"]:
+        click.echo(f"kept in {result['folder']}")
 
 
 def main(argv: list[str] | None = None) -> None:

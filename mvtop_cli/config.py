@@ -35,8 +35,8 @@ def _rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fa
 class PoseSpec:
     """A rigid transform given as translation [m] and roll-pitch-yaw [deg] (extrinsic x-y-z)."""
 
-    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    xyz_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_rng(-1000.0, 1000.0))
+    rpy_deg: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_rng(-360.0, 360.0))
 
     def matrix(self) -> np.ndarray:
         """The (4, 4) pose."""
@@ -324,17 +324,26 @@ def _convert(value: Any, tp: Any, key: str, base: Path) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise _Invalid(key, f"expected a number, got {value!r}")
-        if not math.isfinite(value):
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond the float range
+            number = math.inf
+        if not math.isfinite(number):
             raise _Invalid(key, f"expected a finite number, got {value!r}")
-        return float(value)
+        return number
     if tp is str:
         if not isinstance(value, str) or not value:
             raise _Invalid(key, f"expected a non-empty string, got {value!r}")
+        if not value.isprintable():  # names, topics and frames: a control character is a typo
+            raise _Invalid(key, f"expected a string without control characters, got {value!r}")
         return value
     if tp is Path:
-        if not isinstance(value, str) or not value:
+        if not isinstance(value, str) or not value or "\x00" in value:
             raise _Invalid(key, f"expected a file path, got {value!r}")
-        p = Path(value).expanduser()
+        try:
+            p = Path(value).expanduser()
+        except RuntimeError as err:  # '~user' of an unknown user
+            raise _Invalid(key, f"expected a file path, got {value!r} ({err})") from None
         return p if p.is_absolute() else (base / p)
     if tp is Any:
         return value
@@ -344,6 +353,10 @@ def _convert(value: Any, tp: Any, key: str, base: Path) -> Any:
 def _check_range(value: Any, meta: dict, key: str) -> None:
     lo, hi = meta.get("lo"), meta.get("hi")
     if value is None or (lo is None and hi is None):
+        return
+    if isinstance(value, tuple):  # a fixed-size list of numbers: the range holds for each
+        for i, v in enumerate(value):
+            _check_range(v, meta, f"{key}[{i}]")
         return
     if lo is not None and (value < lo or (meta.get("lo_open") and value == lo)):
         op = ">" if meta.get("lo_open") else ">="
@@ -363,7 +376,7 @@ def _build(cls: type, data: Any, prefix: str, base: Path) -> Any:
         if k not in fields:
             hint = difflib.get_close_matches(str(k), list(fields), n=1)
             extra = f" (did you mean {hint[0]!r}?)" if hint else f" (expected one of: {', '.join(fields)})"
-            raise _Invalid(_join(prefix, str(k)), f"unknown key{extra}")
+            raise _Invalid(_join(prefix, key_text(k)), f"unknown key{extra}")
     kwargs = {}
     for name, f in fields.items():
         key = _join(prefix, name)
@@ -378,6 +391,20 @@ def _build(cls: type, data: Any, prefix: str, base: Path) -> Any:
 
 def _join(prefix: str, name: str) -> str:
     return f"{prefix}.{name}" if prefix else name
+
+
+def key_text(key: Any) -> str:
+    """A mapping key as it appears in a dotted key: as written when printable, else quoted
+    with escapes (a key holding a line break must not break the one-line error)."""
+    text = str(key)
+    return text if text.isprintable() and text.strip() == text and text else repr(text)
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # e.g. a name too long for the file system
+        return False
 
 
 def _check_semantics(cfg: Config) -> None:
@@ -396,9 +423,9 @@ def _check_semantics(cfg: Config) -> None:
         (f"environment[{i}].mesh", e.mesh) for i, e in enumerate(cfg.environment)
     ]
     for key, path in meshes:
-        if not path.is_file():
+        if not _is_file(path):
             raise _Invalid(key, f"mesh file not found: {path}")
-    if cfg.robot.urdf is not None and not cfg.robot.urdf.is_file():
+    if cfg.robot.urdf is not None and not _is_file(cfg.robot.urdf):
         raise _Invalid("robot.urdf", f"URDF file not found: {cfg.robot.urdf}")
     if cfg.contact.force_off_n >= cfg.contact.force_on_n:
         raise _Invalid("contact.force_off_n", "expected a value below contact.force_on_n (hysteresis)")

@@ -331,3 +331,101 @@ def render_html(report: dict) -> str:
         "</body></html>",
         "",
     ])
+
+
+def svg_log_boxplot(
+    groups: Sequence[str],
+    series: Sequence[tuple[str, Sequence[Sequence[float]]]],
+    *,
+    title: str,
+    ylabel: str,
+    height: int = 320,
+) -> str:
+    """An inline SVG box plot with a logarithmic y axis (as the M-VTOP paper's figure 4).
+
+    ``groups`` label the x axis (e.g. objects); ``series`` are ``(label, values)`` with one
+    sequence of values per group (e.g. one method's errors per object), drawn as side-by-side
+    boxes in the series' colour; a group with no values gets no box. A box spans the
+    quartiles, its line is the median, the whiskers reach the most extreme values within 1.5
+    interquartile ranges of the box and the values beyond are dots. Values <= 0 are drawn on
+    the bottom edge, as in :func:`svg_log_plot`. Each box is a ``<g class="box">`` with
+    ``data-group``, ``data-series``, ``data-n`` and ``data-median`` (``repr`` of the median)
+    and a tooltip.
+    """
+    vals = [[np.array([v for v in g if v is not None and math.isfinite(v)], dtype=np.float64) for g in s]
+            for _, s in series]
+    allv = np.concatenate([v for s in vals for v in s] + [np.zeros(0)])
+    pos = allv[allv > 0]
+    if len(pos) == 0:
+        pos = np.array([1e-3, 1.0])
+    lo_dec, hi_dec = math.floor(math.log10(pos.min())), math.ceil(math.log10(pos.max()))
+    has_zero = bool(np.any(allv <= 0))
+    if has_zero:
+        lo_dec -= 1
+    if hi_dec <= lo_dec:
+        hi_dec = lo_dec + 1
+    floor = 10.0 ** lo_dec
+    ns = max(1, len(series))
+    box_w = 18
+    ml, mr, mt, mb = 64, 150, 28, 48
+    # at least room for the title; wider groups spread the boxes apart
+    group_w = max(ns * box_w + 26, 360 / max(len(groups), 1))
+    gap = group_w - ns * box_w
+    pw = max(len(groups), 1) * group_w
+    width = int(math.ceil(ml + pw + mr))
+    ph = height - mt - mb
+
+    def py(v: float) -> float:
+        v = max(v, floor) if math.isfinite(v) else floor
+        return mt + (hi_dec - math.log10(v)) / (hi_dec - lo_dec) * ph
+
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
+           'font-family="sans-serif" font-size="11">',
+           f'<text x="{ml}" y="16" font-size="13" font-weight="bold">{html.escape(title)}</text>',
+           f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>']
+    for d in range(lo_dec, hi_dec + 1):
+        y = py(10.0 ** d)
+        out.append(f'<line x1="{ml}" x2="{ml + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd"/>')
+        le = "≤" if has_zero and d == lo_dec else ""
+        out.append(f'<text x="{ml - 6}" y="{y + 4:.1f}" text-anchor="end">{le}1e{d}</text>')
+        for m in range(2, 10):
+            if d < hi_dec:
+                ym = py(m * 10.0 ** d)
+                out.append(f'<line x1="{ml}" x2="{ml + 4}" y1="{ym:.1f}" y2="{ym:.1f}" stroke="#999"/>')
+    out.append(f'<text x="14" y="{mt + ph / 2}" text-anchor="middle" transform="rotate(-90 14 {mt + ph / 2})">'
+               f'{html.escape(ylabel)} (log scale)</text>')
+    for gi, gname in enumerate(groups):
+        gx = ml + gi * group_w + gap / 2
+        out.append(f'<text x="{gx + ns * box_w / 2:.1f}" y="{mt + ph + 16}" text-anchor="middle">{html.escape(gname)}</text>')
+        for si, (sname, _) in enumerate(series):
+            v = np.sort(vals[si][gi]) if gi < len(vals[si]) else np.zeros(0)
+            if len(v) == 0:
+                continue
+            color = _COLORS[si % len(_COLORS)]
+            q1, med, q3 = (float(x) for x in np.percentile(v, [25, 50, 75]))
+            iqr = q3 - q1
+            inside = v[(v >= q1 - 1.5 * iqr) & (v <= q3 + 1.5 * iqr)]
+            w_lo, w_hi = float(inside.min()), float(inside.max())
+            x0 = gx + si * box_w + 2
+            xc = x0 + (box_w - 4) / 2
+            tip = f"{gname}, {sname}: n={len(v)}, median {_fmt(med)}, quartiles {_fmt(q1)}-{_fmt(q3)}"
+            out.append(f'<g class="box" data-group="{html.escape(gname)}" data-series="{html.escape(sname)}" '
+                       f'data-n="{len(v)}" data-median="{med!r}"><title>{html.escape(tip)}</title>')
+            out.append(f'<line x1="{xc:.1f}" x2="{xc:.1f}" y1="{py(w_hi):.1f}" y2="{py(w_lo):.1f}" stroke="{color}"/>')
+            top, bottom = py(q3), py(q1)
+            out.append(f'<rect x="{x0:.1f}" y="{top:.1f}" width="{box_w - 4}" height="{max(bottom - top, 0.5):.1f}" '
+                       f'fill="{color}" fill-opacity="0.25" stroke="{color}"/>')
+            out.append(f'<line x1="{x0:.1f}" x2="{x0 + box_w - 4:.1f}" y1="{py(med):.1f}" y2="{py(med):.1f}" '
+                       f'stroke="{color}" stroke-width="2"/>')
+            for o in v[(v < w_lo) | (v > w_hi)]:
+                out.append(f'<circle cx="{xc:.1f}" cy="{py(float(o)):.1f}" r="2" fill="none" stroke="{color}"/>')
+            out.append("</g>")
+    legend_y = mt + 8
+    for si, (sname, _) in enumerate(series):
+        color = _COLORS[si % len(_COLORS)]
+        out.append(f'<rect x="{ml + pw + 10}" y="{legend_y - 5}" width="14" height="10" fill="{color}" '
+                   f'fill-opacity="0.25" stroke="{color}"/>')
+        out.append(f'<text x="{ml + pw + 30}" y="{legend_y + 4}">{html.escape(sname)}</text>')
+        legend_y += 16
+    out.append("</svg>")
+    return "\n".join(out)

@@ -73,9 +73,15 @@ class StepResult:
     diagnostics : dict
       ``flags`` (list of raised flag names: ``degenerate_weights``, ``ess_collapsed``,
       ``estimate_jump``, ``tempering_forced``), the matching booleans,
-      ``invalid_log_likelihood`` (count of NaN / +inf values received), the jump and
-      its allowance, and for ``refine`` the per-stage ``betas``, ``stage_ess``,
-      ``acceptance_rates`` and ``likelihood_evaluations``.
+      ``invalid_log_likelihood`` (count of NaN / +inf values received),
+      ``evaluated_poses`` (how many poses were scored), ``min_ess`` (the smallest ESS of
+      the update: of the weights for ``update``, of any tempering stage for ``refine``)
+      and ``ess_collapse_threshold``, the jump and its allowance, and for ``refine`` the
+      per-stage ``betas``, ``stage_ess``, ``acceptance_rates`` and
+      ``likelihood_evaluations``. A frame redone after a collapse (see
+      ``ParticleFilter``'s ``collapse_retry_iterations``) adds ``collapse_retry``: the
+      iterations of the redo, ``min_ess_before`` and ``recovered`` (the redo's ESS stayed
+      above the threshold).
     """
 
     particles: ParticleSet
@@ -278,7 +284,9 @@ class ParticleFilter:
     rng : numpy.random.Generator
       The only source of randomness: same seed, same results.
     ess_collapse_fraction : float
-      An ESS below this fraction of N raises the ``ess_collapsed`` flag.
+      An ESS below this fraction of N raises the ``ess_collapsed`` flag, with a floor of
+      2 particles (at most N / 2): default 1%, i.e. 5 of 500 particles, 2 of 100 (an ESS
+      under 2 means one particle holds most of the weight).
     jump_sigmas : float
       An estimate moving further from the predicted particles' mean than this many
       RMS spreads of the predicted particles (the previous belief plus the motion
@@ -294,6 +302,14 @@ class ParticleFilter:
     refine_target_ess_fraction : float in (0, 1)
       Fraction of the ESS each adaptive tempering stage of ``refine`` keeps (0.5, the
       usual choice, halves it per stage).
+    collapse_retry_iterations : int
+      0 (default): an ESS collapse is only flagged. More: a frame whose ESS collapsed is
+      redone once from the same predicted particles by ``refine`` with
+      ``max(collapse_retry_iterations, 3 * iterations)`` iterations (the observation
+      still counts once), whose smaller tempering steps and Metropolis moves rejuvenate
+      the particles; ``ess_collapsed`` stays flagged and ``collapse_retry`` says whether
+      the redo kept its ESS above the threshold. Frames without a collapse are
+      unaffected.
     """
 
     def __init__(
@@ -310,6 +326,7 @@ class ParticleFilter:
         floor_translation_m: float = 5e-5,
         floor_rotation_rad: float = float(np.deg2rad(0.05)),
         refine_target_ess_fraction: float = 0.5,
+        collapse_retry_iterations: int = 0,
     ) -> None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator (no global random state)")
@@ -322,6 +339,8 @@ class ParticleFilter:
             raise ValueError(f"refine_target_ess_fraction must be in (0, 1), got {refine_target_ess_fraction!r}")
         if int(refine_iterations) < 0:
             raise ValueError(f"refine_iterations must be >= 0, got {refine_iterations!r}")
+        if int(collapse_retry_iterations) < 0:
+            raise ValueError(f"collapse_retry_iterations must be >= 0, got {collapse_retry_iterations!r}")
         _check_shrink(refine_shrink)
         if floor_translation_m <= 0 or floor_rotation_rad <= 0:
             raise ValueError("floor_translation_m and floor_rotation_rad must be > 0")
@@ -336,6 +355,7 @@ class ParticleFilter:
         self.floor_translation_m = float(floor_translation_m)
         self.floor_rotation_rad = float(floor_rotation_rad)
         self.refine_target_ess_fraction = float(refine_target_ess_fraction)
+        self.collapse_retry_iterations = int(collapse_retry_iterations)
 
     # -- the loop ---------------------------------------------------------------------
 
@@ -389,12 +409,21 @@ class ParticleFilter:
             out, resampled = posterior, False
         else:
             out, resampled = resample_if_needed(posterior, self.ess_threshold_fraction, self.resampling, self.rng)
-        diagnostics: dict = {"invalid_log_likelihood": n_invalid, "likelihood_evaluations": 1}
-        if "degenerate_weights" not in flags and ess < self.ess_collapse_fraction * len(particles):
+        diagnostics: dict = {
+            "invalid_log_likelihood": n_invalid,
+            "likelihood_evaluations": 1,
+            "evaluated_poses": len(particles),
+            "min_ess": float(ess),
+            "ess_collapse_threshold": self.collapse_threshold(len(particles)),
+        }
+        if "degenerate_weights" not in flags and ess < self.collapse_threshold(len(particles)):
             flags.append("ess_collapsed")
         diagnostics.update(self._jump(reference, spread.mean, flags))
         _finish(diagnostics, flags)
-        return StepResult(out, spread.mean, spread, ess, resampled, log_evidence, diagnostics)
+        result = StepResult(out, spread.mean, spread, ess, resampled, log_evidence, diagnostics)
+        if "ess_collapsed" in flags and self.collapse_retry_iterations > 0:
+            return self._redo_collapsed(particles, log_likelihood_fn, result, 0, None)
+        return result
 
     def refine(
         self,
@@ -449,6 +478,41 @@ class ParticleFilter:
             raise ValueError(f"refine needs iterations >= 1, got {iterations!r}")
         shrink = self.refine_shrink if shrink is None else float(shrink)
         _check_shrink(shrink)
+        result = self._refine(particles, log_likelihood_fn, iterations, shrink)
+        if "ess_collapsed" in result.flags and self.collapse_retry_iterations > 0:
+            return self._redo_collapsed(particles, log_likelihood_fn, result, iterations, shrink)
+        return result
+
+    def _redo_collapsed(
+        self,
+        particles: ParticleSet,
+        log_likelihood_fn: LogLikelihoodFn,
+        collapsed: StepResult,
+        iterations: int,
+        shrink: float | None,
+    ) -> StepResult:
+        """Recovery from an ESS collapse: the frame again from the same predicted
+        ``particles`` by ``refine`` with more, hence smaller, tempering stages, each
+        followed by Metropolis moves (see ``collapse_retry_iterations``)."""
+        k = max(self.collapse_retry_iterations, 3 * iterations)
+        redo = self._refine(particles, log_likelihood_fn, k, self.refine_shrink if shrink is None else shrink)
+        d = redo.diagnostics
+        flags = [f for f in d["flags"] if f != "ess_collapsed"]
+        d["collapse_retry"] = {
+            "iterations": k,
+            "min_ess_before": collapsed.diagnostics["min_ess"],
+            "recovered": "ess_collapsed" not in d["flags"],
+        }
+        d["invalid_log_likelihood"] += collapsed.diagnostics["invalid_log_likelihood"]
+        d["likelihood_evaluations"] += collapsed.diagnostics["likelihood_evaluations"]
+        d["evaluated_poses"] += collapsed.diagnostics["evaluated_poses"]
+        _finish(d, ["ess_collapsed"] + flags)
+        return redo
+
+    def _refine(
+        self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int, shrink: float
+    ) -> StepResult:
+        """``refine`` without the collapse recovery."""
         rng, n = self.rng, len(particles)
         scheme = get_scheme(self.resampling)
         floor_var = np.array([self.floor_translation_m] * 3 + [self.floor_rotation_rad] * 3) ** 2
@@ -467,6 +531,9 @@ class ParticleFilter:
             diagnostics.update(
                 invalid_log_likelihood=n_invalid,
                 likelihood_evaluations=1,
+                evaluated_poses=n,
+                min_ess=0.0,
+                ess_collapse_threshold=self.collapse_threshold(n),
                 betas=[],
                 stage_ess=[],
                 acceptance_rates=[],
@@ -511,11 +578,14 @@ class ParticleFilter:
 
         out = ParticleSet.uniform(chart.from_tangent(state.xi))
         spread = out.spread()
-        if min(stage_ess, default=float(n)) < self.ess_collapse_fraction * n:
+        if min(stage_ess, default=float(n)) < self.collapse_threshold(n):
             flags.append("ess_collapsed")
         diagnostics.update(
             invalid_log_likelihood=n_invalid,
             likelihood_evaluations=iterations + 1,
+            evaluated_poses=n * (iterations + 1),
+            min_ess=float(min(stage_ess, default=float(n))),
+            ess_collapse_threshold=self.collapse_threshold(n),
             betas=betas,
             stage_ess=stage_ess,
             acceptance_rates=acceptance,
@@ -526,6 +596,11 @@ class ParticleFilter:
         return StepResult(out, spread.mean, spread, ess, True, log_evidence, diagnostics)
 
     # -- checks -----------------------------------------------------------------------
+
+    def collapse_threshold(self, n: int) -> float:
+        """The ESS below which ``n`` particles count as collapsed: ``ess_collapse_fraction
+        * n``, at least 2, at most ``n / 2``."""
+        return min(max(self.ess_collapse_fraction * n, 2.0), 0.5 * n)
 
     def _jump(self, reference: Spread, estimate: np.ndarray, flags: list[str]) -> dict:
         """Compare the estimate with the predicted particles' mean: the motion model (and

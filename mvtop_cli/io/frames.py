@@ -31,7 +31,7 @@ from ..records import Frame, SensorImage
 from . import ros2_msgs as rm
 from .images import decode_depth, decode_image
 from .mcap_reader import LogMessage, McapLog
-from .tf_buffer import PoseSeries, TfBuffer, stamp_to_ns
+from .tf_buffer import PoseSeries, TfBuffer, stamp_to_ns, valid_transform
 
 MODALITIES = ("camera", "tactile")
 
@@ -114,9 +114,26 @@ def undistort_maps(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     return cv2.initUndistortRectifyMap(camera.K, D, None, camera.K, (camera.width, camera.height), cv2.CV_32FC1)
 
 
+# Coefficient counts OpenCV reads for each supported model (ROS: 5 and 8).
+_DISTORTION_COUNTS = {"plumb_bob": (4, 5), "rational_polynomial": (8, 12, 14)}
+MAX_IMAGE_SIDE_PX = 16384  # beyond any camera or tactile sensor; bounds the undistortion tables
+
+
 def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
-    """A PinholeCamera from a decoded sensor_msgs/CameraInfo."""
+    """A PinholeCamera from a decoded sensor_msgs/CameraInfo; LogError naming ``topic`` when
+    the size, intrinsics ``k`` [px] or distortion coefficients ``d`` are unusable."""
+    width, height = int(msg.width), int(msg.height)
+    if not (0 < width <= MAX_IMAGE_SIDE_PX and 0 < height <= MAX_IMAGE_SIDE_PX):
+        raise LogError(
+            f"topic {topic!r}: CameraInfo gives an image size of {width}x{height} px "
+            f"(expected 1 to {MAX_IMAGE_SIDE_PX} px per side)"
+        )
     K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    if not np.all(np.isfinite(K)) or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+        raise LogError(
+            f"topic {topic!r}: CameraInfo has intrinsics k={K.ravel().tolist()} "
+            "(expected finite numbers with a last row of 0, 0, 1)"
+        )
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise LogError(
             f"topic {topic!r}: CameraInfo has focal lengths fx={K[0, 0]}, fy={K[1, 1]} "
@@ -124,12 +141,19 @@ def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
         )
     model = str(msg.distortion_model) or "plumb_bob"
     D = np.asarray(msg.d, dtype=np.float64)
+    if not np.all(np.isfinite(D)):
+        raise LogError(f"topic {topic!r}: CameraInfo has distortion coefficients d={D.tolist()} (expected finite numbers)")
     if np.any(D != 0) and model not in _DISTORTION_MODELS:
         raise LogError(
             f"topic {topic!r}: CameraInfo distortion model {model!r} is not supported "
             f"(expected {' or '.join(_DISTORTION_MODELS)}, or all-zero coefficients)"
         )
-    return PinholeCamera(width=int(msg.width), height=int(msg.height), K=K, distortion_model=model, distortion=D)
+    if np.any(D != 0) and len(D) not in _DISTORTION_COUNTS[model]:
+        expected = " or ".join(str(n) for n in _DISTORTION_COUNTS[model])
+        raise LogError(
+            f"topic {topic!r}: CameraInfo has {len(D)} distortion coefficients for model {model!r} (expected {expected})"
+        )
+    return PinholeCamera(width=width, height=height, K=K, distortion_model=model, distortion=D)
 
 
 @dataclass
@@ -344,10 +368,17 @@ class FrameReader:
                         f"{self._gt_frame!r} to {frame!r} at log time {m.log_time_ns} ns (expected one frame)"
                     )
                 p, q = msg.pose.position, msg.pose.orientation
+                tr, quat = valid_transform(
+                    (p.x, p.y, p.z), (q.x, q.y, q.z, q.w), str(self.log.path),
+                    f"ground truth on {t.ground_truth!r} at log time {m.log_time_ns} ns",
+                )
                 gt_t.append(header_stamp_ns(msg, m.log_time_ns))
-                gt_v.append(np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w]))
+                gt_v.append(np.array([*tr, *quat]))
             if m.topic in info_of:
-                cam = camera_from_info(msg, m.topic)
+                try:
+                    cam = camera_from_info(msg, m.topic)
+                except LogError as err:  # the parser knows the topic; add the log and time
+                    raise LogError(f"{self.log.path}: {err} (log time {m.log_time_ns} ns)") from err
                 for name in info_of[m.topic]:
                     stamps, cams = self._infos[name]
                     if not cams or not _same_camera(cams[-1], cam):
@@ -522,13 +553,14 @@ class FrameReader:
                 continue
             depth = None
             dslot = g.slots.get((s.name, "depth"))
+            camera = self._camera_at(s.name, st)
+            size = (camera.width, camera.height)
             try:
                 if dslot is not None:
-                    depth = decode_depth(dslot[1].msg, dslot[1].topic)
-                rgb = decode_image(m.msg, m.topic)
+                    depth = decode_depth(dslot[1].msg, dslot[1].topic, size)
+                rgb = decode_image(m.msg, m.topic, size)
             except LogError as err:  # the decoders know the topic; add the log and time
                 raise LogError(f"{self.log.path}: {err} (stamp {st} ns)") from err
-            camera = self._camera_at(s.name, st)
             if camera.has_distortion:
                 rgb, depth, camera = self._undistort(s.name, rgb, depth, camera, st)
             img = SensorImage(

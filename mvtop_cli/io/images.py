@@ -7,6 +7,11 @@ when first needed (only for compressed images).
 
 from __future__ import annotations
 
+import os
+import re
+import struct
+import sys
+import tempfile
 from typing import Any
 
 import numpy as np
@@ -52,6 +57,8 @@ def _raw_array(msg: Any, topic: str, table: dict[str, tuple[int, str]], kind: st
     channels, dtype = table[encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     data = msg.data
+    if height <= 0 or width <= 0:
+        raise LogError(f"topic {topic!r}: {encoding} image of {width}x{height} px (expected a non-empty image)")
     itemsize = np.dtype(dtype).itemsize
     row_bytes = width * channels * itemsize
     if step < row_bytes or len(data) != step * height:
@@ -75,27 +82,40 @@ def _to_rgb(arr: np.ndarray, encoding: str) -> np.ndarray:
     return np.ascontiguousarray(arr[:, :, :3])
 
 
-def decode_image(msg: Any, topic: str = "") -> np.ndarray:
+def _check_size(width: int, height: int, expected: tuple[int, int] | None, topic: str, what: str) -> None:
+    if expected is not None and (width, height) != tuple(expected):
+        raise LogError(
+            f"topic {topic!r}: {what} of {width}x{height} px but CameraInfo says {expected[0]}x{expected[1]} "
+            "(expected images of the calibrated size)"
+        )
+
+
+def decode_image(msg: Any, topic: str = "", expected_size: tuple[int, int] | None = None) -> np.ndarray:
     """A sensor_msgs Image or CompressedImage -> (H, W, 3) uint8 RGB.
 
     Raw encodings: rgb8, bgr8, rgba8, bgra8, mono8, mono16 (scaled to 8 bits), 8UC1, 8UC3.
     Compressed formats: png and jpeg (any ``format`` string naming them, as
-    image_transport writes e.g. ``"rgb8; jpeg compressed bgr8"``).
+    image_transport writes e.g. ``"rgb8; jpeg compressed bgr8"``). ``expected_size``
+    (width, height) [px], e.g. from CameraInfo, rejects an image of another size (a
+    compressed one before it is decoded, when its header tells the size).
     """
     if hasattr(msg, "format"):
-        return decode_compressed(msg, topic)
+        return decode_compressed(msg, topic, expected_size)
     arr, encoding = _raw_array(msg, topic, COLOR_ENCODINGS, "colour")
+    _check_size(arr.shape[1], arr.shape[0], expected_size, topic, f"{encoding} image")
     return _to_rgb(arr, encoding)
 
 
-def decode_depth(msg: Any, topic: str = "") -> np.ndarray:
-    """A sensor_msgs Image with encoding 32FC1 [m] or 16UC1 [mm] -> (H, W) float32 [m]."""
+def decode_depth(msg: Any, topic: str = "", expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """A sensor_msgs Image with encoding 32FC1 [m] or 16UC1 [mm] -> (H, W) float32 [m]
+    (``expected_size`` as in ``decode_image``)."""
     if hasattr(msg, "format"):
         raise LogError(
             f"topic {topic!r}: compressed depth ({msg.format!r}) is not supported "
             "(expected a raw sensor_msgs/msg/Image with encoding 32FC1 or 16UC1)"
         )
     arr, encoding = _raw_array(msg, topic, DEPTH_ENCODINGS, "depth")
+    _check_size(arr.shape[1], arr.shape[0], expected_size, topic, f"{encoding} depth image")
     if encoding == "16UC1":
         return (arr[:, :, 0].astype(np.float32) * np.float32(1e-3)).astype(np.float32)
     return arr[:, :, 0].astype(np.float32)
@@ -113,19 +133,108 @@ def compressed_codec(fmt: str) -> str | None:
     return None
 
 
-def decode_compressed(msg: Any, topic: str = "") -> np.ndarray:
-    """A sensor_msgs CompressedImage (png or jpeg) -> (H, W, 3) uint8 RGB."""
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+# JPEG start-of-frame markers (they hold the image size): C0-CF except DHT, JPG and DAC.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def stream_size(data: bytes) -> tuple[str, int, int] | None:
+    """``(codec, width, height)`` [px] from the header of a png or jpeg stream, without
+    decoding it; None when the header cannot be read (the decoder then reports why)."""
+    data = bytes(data[:65536]) if len(data) > 65536 else bytes(data)
+    if data[:8] == _PNG_MAGIC and len(data) >= 24 and data[12:16] == b"IHDR":
+        width, height = struct.unpack_from(">II", data, 16)
+        return "png", width, height
+    if data[:2] != b"\xff\xd8":
+        return None
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker in (0x01, *range(0xD0, 0xD8)):  # markers without a length
+            pos += 2
+            continue
+        (length,) = struct.unpack_from(">H", data, pos + 2)
+        if marker in _JPEG_SOF:
+            if pos + 9 > len(data):
+                return None
+            height, width = struct.unpack_from(">HH", data, pos + 5)
+            return "jpeg", width, height
+        if marker in (0xD9, 0xDA) or length < 2:  # end of image or start of scan: no frame header before
+            return None
+        pos += 2 + length
+    return None
+
+
+def _imdecode(cv2: Any, data: bytes) -> tuple[Any, list[str]]:
+    """``cv2.imdecode`` with the codecs' diagnostics captured: libpng and libjpeg write them
+    straight to file descriptor 2, and a command line must keep its errors to one line.
+    Returns the image (None if undecodable) and the diagnostic lines (OpenCV's log prefix
+    removed)."""
+    sys.stderr.flush()
+    lines: list[str] = []
+    with tempfile.TemporaryFile() as captured:
+        saved = os.dup(2)
+        os.dup2(captured.fileno(), 2)
+        try:
+            img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error as err:  # e.g. a header claiming more pixels than OpenCV allows
+            img = None
+            lines.append(str(err).strip().splitlines()[-1])
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        text = captured.read(4096).decode("utf-8", "replace")
+    stripped = (re.sub(r"^\[ *\w+:[^\]]*\]\s*(global\s+\S+\s+\S+\s+)?", "", ln).strip() for ln in text.splitlines())
+    return img, [ln for ln in stripped if ln] + lines
+
+
+def _corrupt(diagnostics: list[str]) -> str | None:
+    """The first diagnostic that means the decoded pixels are not the stream's (libjpeg fills
+    what it could not decode with grey); None for benign ones (libpng warnings, extraneous
+    bytes between JPEG segments, which some cameras write)."""
+    for line in diagnostics:
+        if ("Corrupt JPEG data" in line and "extraneous bytes" not in line) or "Premature end of JPEG" in line:
+            return line
+    return None
+
+
+def decode_compressed(msg: Any, topic: str = "", expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """A sensor_msgs CompressedImage (png or jpeg) -> (H, W, 3) uint8 RGB.
+
+    ``expected_size`` (width, height) [px] rejects an image of another size, before
+    decoding when the stream's header gives its size. A stream the codec reports as
+    corrupt (even one it could partly decode) raises LogError with the codec's message.
+    """
     fmt = str(msg.format)
     if compressed_codec(fmt) is None:
         raise LogError(
             f"topic {topic!r}: unsupported compressed image format {fmt!r} "
             f"(supported: {', '.join(COMPRESSED_FORMATS)})"
         )
+    data = bytes(msg.data)
+    header = stream_size(data)
+    if header is not None:
+        _check_size(header[1], header[2], expected_size, topic, f"{header[0]} image")
     cv2 = _cv2()
-    img = cv2.imdecode(np.frombuffer(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
+    img, diagnostics = _imdecode(cv2, data)
+    problem = diagnostics[0] if img is None and diagnostics else _corrupt(diagnostics)
+    if img is None or problem:
+        why = f": {problem}" if problem else ""
         raise LogError(
-            f"topic {topic!r}: {len(msg.data)} bytes do not decode as {fmt!r} (expected a valid png or jpeg stream)"
+            f"topic {topic!r}: {len(data)} bytes do not decode as {fmt!r}{why} (expected a valid png or jpeg stream)"
+        )
+    _check_size(img.shape[1], img.shape[0], expected_size, topic, "decoded image")
+    if (img.ndim == 3 and img.shape[2] not in (3, 4)) or img.dtype not in (np.uint8, np.uint16):
+        channels = img.shape[2] if img.ndim == 3 else 1
+        raise LogError(
+            f"topic {topic!r}: decoded image has {channels} channels of {img.dtype} "
+            "(expected 1, 3 or 4 channels of 8 or 16 bits)"
         )
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)

@@ -26,16 +26,18 @@ from typing import Any
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Footer, Header, Schema, Statistics
 
 from ..errors import LogError
-from .ros2_msgs import normalize_type
+from .ros2_msgs import MESSAGE_TYPES, normalize_type, schema_mismatch
 
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD_SIZE = 1 + 8 + 20  # opcode, length, (summary_start, summary_offset_start, crc)
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
+MAX_TIME_NS = 2**63 - 1  # times are int64 nanoseconds inside mvtop (MCAP allows uint64)
 
 
 @dataclass(frozen=True)
@@ -194,6 +196,12 @@ class _McapFile:
     # --- low-level reads ----------------------------------------------------------------
 
     def _read(self, offset: int, n: int) -> bytes:
+        # Check before reading: a corrupt length or offset must not allocate n bytes first.
+        if offset < 0 or n < 0 or offset + n > self.size:
+            raise LogError(
+                f"{self.path}: truncated or corrupt at byte {min(max(offset, 0), self.size)} (a record needs {n} bytes "
+                f"at offset {offset} but the file has {self.size}; was the recording interrupted?)"
+            )
         self._fh.seek(offset)
         data = self._fh.read(n)
         if len(data) != n:
@@ -204,7 +212,10 @@ class _McapFile:
         return data
 
     def _corrupt(self, what: str, offset: int, err: BaseException | str) -> LogError:
-        return LogError(f"{self.path}: corrupt {what} at byte {offset} ({err})")
+        detail = str(err) or type(err).__name__
+        if "expected" not in detail:
+            detail += f"; expected a well-formed MCAP {what}"
+        return LogError(f"{self.path}: corrupt {what} at byte {offset} ({detail})")
 
     # --- opening --------------------------------------------------------------------------
 
@@ -361,6 +372,8 @@ class _McapFile:
                     c = _parse(Channel, self._read(body_at, length))
                     self.channels[c.id] = c
                 elif op == Opcode.MESSAGE:
+                    if length < _MESSAGE_HEAD.size:
+                        raise ValueError(f"message record of {length} bytes (expected at least {_MESSAGE_HEAD.size})")
                     cid, _seq, log_time, _pub = _MESSAGE_HEAD.unpack(self._read(body_at, _MESSAGE_HEAD.size))
                     self.stats.setdefault(cid, _ChannelStats()).add(1, log_time, log_time)
                     self.blocks.append(_Block(log_time, log_time, pos, False, frozenset([cid])))
@@ -445,8 +458,8 @@ class _McapFile:
                 elif register and op == Opcode.CHANNEL:
                     c = _parse(Channel, body)
                     self.channels.setdefault(c.id, c)
-        except (ValueError, struct.error, UnicodeDecodeError) as err:
-            raise self._corrupt("chunk", offset, err) from err
+        except (ValueError, struct.error, UnicodeDecodeError, McapError) as err:
+            raise self._corrupt("chunk", offset, f"{type(err).__name__}: {err}") from err
 
     def _block_messages(self, block: _Block) -> Iterator[tuple[int, int, int, memoryview]]:
         if block.is_chunk:
@@ -652,6 +665,18 @@ class McapLog:
                 f"{f.path}: topic {ch.topic!r} has schema encoding {schema.encoding!r} and message encoding "
                 f"{ch.message_encoding!r} (expected 'ros2msg' schemas with 'cdr' messages, as rosbag2 writes)"
             )
+        if normalize_type(schema.name) in MESSAGE_TYPES:
+            # A type mvtop reads: its fields must be the ones the readers access (a schema
+            # edited or corrupted in the file would otherwise decode into other attributes).
+            try:
+                problem = schema_mismatch(schema.name, bytes(schema.data).decode("utf-8"))
+            except UnicodeDecodeError as err:
+                problem = f"is not UTF-8 text ({err})"
+            if problem is not None:
+                raise LogError(
+                    f"{f.path}: topic {ch.topic!r}: the {schema.name} schema stored in the log {problem} "
+                    "(expected the ROS 2 message definition)"
+                )
         from mcap_ros2.decoder import DecoderFactory
 
         try:
@@ -713,6 +738,11 @@ class McapLog:
             ch = f.channels.get(cid)
             if ch is None:
                 raise LogError(f"{f.path}: message at log time {log_time} ns refers to unknown channel {cid}")
+            if log_time > MAX_TIME_NS:
+                raise LogError(
+                    f"{f.path}: message on topic {ch.topic!r} has log time {log_time} ns "
+                    f"(expected at most {MAX_TIME_NS} ns, the largest int64 nanosecond time)"
+                )
             schema = f.schemas.get(ch.schema_id)
             type_name = schema.name if schema else ""
             msg: Any = data

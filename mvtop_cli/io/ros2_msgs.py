@@ -198,6 +198,67 @@ def definition(type_name: str) -> str:
     return text
 
 
+_ALIASES = {"byte": "uint8", "char": "uint8"}
+
+
+def _field_list(text: str, pkg: str) -> list[tuple[str, str]]:
+    """``(type, name)`` of the fields in one ``.msg`` text (constants and comments dropped);
+    non-primitive types are qualified with ``pkg`` and written ``pkg/Name``, array suffixes kept."""
+    out = []
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line or "=" in line:  # blank, comment, or a constant
+            continue
+        parts = line.split()
+        if len(parts) < 2:
+            out.append((parts[0], ""))  # malformed: a type without a name
+            continue
+        type_text, name = parts[0], parts[1]
+        m = re.match(r"^([^\[]+)(\[.*\])?$", type_text)
+        base, suffix = (m.group(1), m.group(2) or "") if m else (type_text, "")
+        base = _ALIASES.get(base, base)
+        if re.sub(r"<=\d+$", "", base) not in _PRIMITIVES:
+            base = _short(base if "/" in base else f"{pkg}/{base}") if base.count("/") in (0, 1, 2) else base
+        out.append((base + suffix, name))
+    return out
+
+
+def schema_sections(type_name: str, text: str) -> dict[str, list[tuple[str, str]]]:
+    """The field lists of a stored ``ros2msg`` schema text, keyed ``pkg/msg/Name``: the
+    first section is ``type_name`` itself, the others are introduced by ``MSG: pkg/Name``."""
+    sections: dict[str, list[tuple[str, str]]] = {}
+    name, lines = normalize_type(type_name), []
+    for line in text.splitlines() + [_SEPARATOR]:
+        if line.strip() == _SEPARATOR:
+            if name is not None:
+                sections.setdefault(name, _field_list("\n".join(lines), name.split("/")[0]))
+            name, lines = None, []
+        elif name is None and line.startswith("MSG:"):
+            name = normalize_type(line[4:].strip())
+        elif name is not None:
+            lines.append(line)
+    return sections
+
+
+def schema_mismatch(type_name: str, text: str) -> str | None:
+    """Why a stored schema of ``type_name`` (a type this module defines) cannot be read as
+    mvtop reads it, or None when every field mvtop knows is there with the same type
+    (extra fields and comments are fine). Only the fields' names and types are compared."""
+    name = normalize_type(type_name)
+    stored = schema_sections(name, text)
+    for t in [name, *dependencies(name)]:
+        fields = stored.get(t)
+        if fields is None:
+            return f"has no definition of {t}"
+        have = dict((n, ty) for ty, n in fields)
+        for ty, n in _field_list(_OWN_TEXT[t], t.split("/")[0]):
+            if n not in have:
+                return f"lacks the field {n!r} of {t}"
+            if have[n] != ty:
+                return f"declares the field {n!r} of {t} as {have[n]!r} (expected {ty!r})"
+    return None
+
+
 # Shorthand constants for the types mvtop's topic layout uses.
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 IMAGE = "sensor_msgs/msg/Image"

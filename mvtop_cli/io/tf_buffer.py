@@ -108,7 +108,7 @@ class TfBuffer:
 
     def _edge(self, parent: str, child: str, static: bool) -> _Edge:
         if parent == child:
-            raise LogError(f"{self.source}: transform from frame {child!r} to itself")
+            raise LogError(f"{self.source}: transform from frame {child!r} to itself (expected a child frame other than its parent)")
         edge = self._edges.get(child)
         if edge is None:
             edge = self._edges[child] = _Edge(parent=parent)
@@ -136,12 +136,13 @@ class TfBuffer:
     ) -> None:
         """Add one sample of a dynamic edge: translation (3,) [m], quaternion (4,) (x, y, z, w)."""
         parent, child = _strip(parent), _strip(child)
+        t, q = valid_transform(translation, quat_xyzw, self.source, f"transform {parent!r} -> {child!r}")
         edge = self._edge(parent, child, static=False)
         if edge._t is None:
             edge._t, edge._v = array("q"), array("d")
         edge._t.append(int(stamp_ns))
-        edge._v.extend(translation)
-        edge._v.extend(_unit_quat(quat_xyzw, self.source, parent, child))
+        edge._v.extend(t)
+        edge._v.extend(q)
         self._dirty = True
 
     def add_tf_message(self, msg: Any, static: bool) -> None:
@@ -151,7 +152,7 @@ class TfBuffer:
             t = (tt.x, tt.y, tt.z)
             q = (rr.x, rr.y, rr.z, rr.w)
             if static:
-                q = _unit_quat(q, self.source, tr.header.frame_id, tr.child_frame_id)
+                t, q = valid_transform(t, q, self.source, f"transform {tr.header.frame_id!r} -> {tr.child_frame_id!r}")
                 self.add_static(tr.header.frame_id, tr.child_frame_id, se3.from_quat_xyzw(q, t))
             else:
                 self.add_dynamic(tr.header.frame_id, tr.child_frame_id, stamp_to_ns(tr.header.stamp), t, q)
@@ -196,7 +197,7 @@ class TfBuffer:
         while frame in self._edges:
             frame = self._edges[frame].parent
             if frame in chain:
-                raise LogError(f"{self.source}: the TF tree has a loop through frame {frame!r}")
+                raise LogError(f"{self.source}: the TF tree has a loop through frame {frame!r} (expected a tree)")
             chain.append(frame)
         return chain
 
@@ -261,13 +262,34 @@ class TfBuffer:
         return se3.invert(T_anc_target) @ T_anc_source
 
 
-def _unit_quat(q: Iterable[float], source: str, parent: str, child: str) -> tuple[float, float, float, float]:
-    v = np.asarray(tuple(q), dtype=np.float64)
-    n = float(np.linalg.norm(v))
-    if not np.isfinite(n) or n < 1e-9:
+# Largest translation component accepted [m]: far beyond any robot cell, small enough that
+# poses composed from a few of them stay finite in float64 arithmetic.
+MAX_TRANSLATION_M = 1e6
+
+
+def valid_transform(
+    translation: Iterable[float], quat_xyzw: Iterable[float], source: str, what: str
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """``(translation (3,) [m], unit quaternion (x, y, z, w))`` of a transform read from a log.
+
+    Raises LogError naming ``source`` and ``what`` (e.g. ``"transform 'world' -> 'ee'"``)
+    when the translation is not finite or beyond ``MAX_TRANSLATION_M``, or the quaternion
+    is not finite or has a norm far from 1 (below 1e-3 or above 1e3; anything closer is
+    normalised, as tf2 does with slightly denormalised quaternions).
+    """
+    t = np.asarray(tuple(translation), dtype=np.float64)
+    if t.shape != (3,) or not np.all(np.isfinite(t)) or np.any(np.abs(t) > MAX_TRANSLATION_M):
         raise LogError(
-            f"{source}: transform {parent!r} -> {child!r} has an invalid quaternion {v.tolist()} "
-            "(expected a non-zero, finite (x, y, z, w))"
+            f"{source}: {what} has an invalid translation {t.tolist()} "
+            f"(expected three finite numbers within +-{MAX_TRANSLATION_M:g} m)"
+        )
+    v = np.asarray(tuple(quat_xyzw), dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):  # inf / huge values are reported below
+        n = float(np.sqrt(np.sum(np.square(v)))) if v.shape == (4,) else float("nan")
+    if not np.isfinite(n) or not 1e-3 <= n <= 1e3:
+        raise LogError(
+            f"{source}: {what} has an invalid quaternion {v.tolist()} "
+            "(expected a finite (x, y, z, w) of norm 1)"
         )
     v = v / n
-    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+    return (float(t[0]), float(t[1]), float(t[2])), (float(v[0]), float(v[1]), float(v[2]), float(v[3]))

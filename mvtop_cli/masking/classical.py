@@ -303,6 +303,7 @@ def _watershed_superpixels(window: _Window, spacing: int) -> np.ndarray:
     one seed per ``spacing``-pixel grid cell, placed at the cell's gradient minimum."""
     h, w = window.shape
     grad = window.grad
+    spacing = max(1, min(spacing, h, w))  # a window narrower than one cell (at an image border)
     gh, gw = max(h // spacing, 1), max(w // spacing, 1)
     cells = grad[: gh * spacing, : gw * spacing].reshape(gh, spacing, gw, spacing).transpose(0, 2, 1, 3)
     flat = cells.reshape(gh, gw, spacing * spacing).argmin(axis=2)

@@ -14,7 +14,9 @@ the likelihood's peak and redoes the frame from the searched poses when it clear
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -24,11 +26,14 @@ import numpy as np
 
 from ..config import Config, dump_config
 from ..contact.likelihood import log_contact_likelihood
-from ..errors import EstimationError
+from ..errors import EstimationError, MvtopError
 from ..filter.motion import MotionModel, init_from_prior, init_uniform_box, perturb_about_origin
 from ..filter.particles import ParticleSet, ess_from_log_weights
 from ..filter.resampling import resample
 from ..filter.search import cross_entropy_search
+from ..filter.health import (
+    SensorConsistency, check_jump, count_warnings, jump_warning, sensor_report, step_warnings, warning, warning_lines,
+)
 from ..filter.pf import ParticleFilter
 from ..filter.scoring import visuo_tactile_score
 from ..geometry import se3
@@ -40,6 +45,7 @@ from ..masking.belief import belief_probability, grabcut_from_belief
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
+from .checkpoint import Checkpoint, EstimateInterrupted, Restored, fingerprint
 from .observe import TACTILE_DEPTH_THRESHOLD_M, Observer
 from .scene_model import OBJECT_ID, SceneModel
 
@@ -67,6 +73,9 @@ _RESEARCH_MARGIN = 10.0
 # The searches stay within this many times the grasp prior's half-widths of the nominal grasp
 # (twice as many sigmas for a gaussian prior): room for slip beyond the prior, no more.
 _SEARCH_BOUND = 2.0
+# Failure handling (see filter/health.py and docs/robustness.md): a frame whose effective
+# sample size collapsed is redone with this many tempering iterations (or 3x its own).
+_COLLAPSE_RETRY_ITERATIONS = 24
 
 
 @dataclass(frozen=True)
@@ -95,6 +104,12 @@ class FrameEstimate:
     mask_mode: str
     particles_world: np.ndarray = field(repr=False)
     T_world_object_gt: np.ndarray | None = None
+    # failure modes detected in this frame (filter.health.warning records)
+    warnings: tuple[dict, ...] = ()
+    # per sensor: IoU of its observed mask with the mask rendered at the estimate
+    sensor_iou: dict[str, float] = field(default_factory=dict)
+    # the sensor consistency watch after this frame (``Estimator.restore_consistency`` on resume)
+    consistency: dict = field(default_factory=dict)
 
 
 def sensor_topics(cfg: Config) -> list[SensorTopics]:
@@ -135,7 +150,10 @@ class Estimator:
             f.sigma_low_translation_m, np.radians(f.sigma_low_rotation_deg),
             f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg),
         )
-        self.pf = ParticleFilter(self.motion, f.resampling, f.ess_threshold, self.rng, refine_iterations=f.refine_iterations)
+        self.pf = ParticleFilter(self.motion, f.resampling, f.ess_threshold, self.rng, refine_iterations=f.refine_iterations,
+                                 collapse_retry_iterations=_COLLAPSE_RETRY_ITERATIONS)
+        # per-sensor agreement with the others; scales eq. 1-2 weights of a sensor that keeps disagreeing
+        self.consistency = SensorConsistency()
         self.observer = Observer(cfg)
         self.particles: ParticleSet | None = None
         self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
@@ -282,7 +300,13 @@ class Estimator:
             T = se3.invert(img.T_world_sensor) @ cand
             rendered[name] = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders[name])
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
-            props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
+            H, W = img.image.shape[:2]
+            inside_w = min(box[2], W) - max(box[0], 0)
+            inside_h = min(box[3], H) - max(box[1], 0)
+            # a belief at the image edge leaves (almost) no pixels to segment: no proposals,
+            # the belief-prompted proposal and the other sensors carry the frame
+            props = ([roi.crop(p) for p in self.observer.camera_proposals(img, box)]
+                     if inside_w >= 2 and inside_h >= 2 else [])
             prob = belief_probability(rendered[name], w[idx])
             belief = grabcut_from_belief(roi_image(img.image, roi), prob, seed=self.cfg.filter.seed)
             proposals[name] = ([belief] if belief is not None else []) + props
@@ -292,6 +316,24 @@ class Estimator:
     # --- one frame -------------------------------------------------------------------------
 
     def step(self, frame: Frame) -> FrameEstimate:
+        """One frame: masks, filter update, and the failure checks of filter/health.py; the
+        estimate is checked against the previous frame's belief and the motion model
+        (``estimate_jump``)."""
+        previous = None if self.particles is None else self.particles.spread()
+        out = self._step(frame)
+        if previous is not None:
+            contact = bool(frame.contact) if self.use_contact else False
+            sigma_t, sigma_r = self.motion.sigmas(contact)
+            jump = check_jump(previous, out.T_ee_object, sigma_t, sigma_r, self.pf.jump_sigmas,
+                              self.pf.floor_translation_m, self.pf.floor_rotation_rad)
+            if jump.jumped:
+                cause = "the belief was re-searched" if "re_searched" in out.flags else ""
+                out = replace(out, warnings=out.warnings + (jump_warning(frame.index, jump, self.pf.jump_sigmas, cause),),
+                              flags=out.flags + ("estimate_jump",))
+        return out
+
+    def _step(self, frame: Frame) -> FrameEstimate:
+        """``step`` without the jump check."""
         first = self.particles is None
         if first:
             self.particles = self._init_particles()
@@ -327,8 +369,8 @@ class Estimator:
         tac_names = [n for n in frame.tactile if n in crops]
         cam_names = [n for n in frame.cameras if n in crops]
         t_share = _TACTILE_SHARE if (tac_names and cam_names) else 1.0
-        gamma = np.array([self.tactile_cfg[n].weight or t_share / len(tac_names) for n in tac_names])
-        nu = np.array([self.camera_weights[n] or (1.0 - t_share if tac_names else 1.0) / len(cam_names) for n in cam_names])
+        base_gamma = np.array([self.tactile_cfg[n].weight or t_share / len(tac_names) for n in tac_names])
+        base_nu = np.array([self.camera_weights[n] or (1.0 - t_share if tac_names else 1.0) / len(cam_names) for n in cam_names])
 
         def ious(T_ee_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             T_w = T_world_ee @ T_ee_obj
@@ -350,26 +392,53 @@ class Estimator:
                 )
             return iou_t, iou_v
 
-        def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
-            iou_t, iou_v = ious(T_ee_obj)
-            # eq. 1-2 without the softmax's normalisation over the batch (a constant for
-            # one batch, but poses scored in different calls are compared: Metropolis
-            # ratios, search elites), so log-likelihoods of different calls agree.
-            score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None) / f.temperature
-            if contact and self.scene.has_contact_model:
-                phi = self.scene.phi(T_world_ee @ T_ee_obj)
-                score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
-            return score
+        scored = {"invalid": 0, "evaluated": 0}
 
+        def make_log_likelihood(gamma: np.ndarray, nu: np.ndarray):
+            def log_likelihood(T_ee_obj: np.ndarray) -> np.ndarray:
+                iou_t, iou_v = ious(T_ee_obj)
+                # eq. 1-2 without the softmax's normalisation over the batch (a constant for
+                # one batch, but poses scored in different calls are compared: Metropolis
+                # ratios, search elites), so log-likelihoods of different calls agree.
+                score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None) / f.temperature
+                if contact and self.scene.has_contact_model:
+                    phi = self.scene.phi(T_world_ee @ T_ee_obj)
+                    score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
+                # NaN / +inf (a degenerate render or distance) mean "no valid score": weight zero,
+                # never a NaN carried into comparisons, searches or the estimate
+                bad = np.isnan(score) | np.isposinf(score)
+                scored["invalid"] += int(bad.sum())
+                scored["evaluated"] += len(score)
+                return np.where(bad, -np.inf, score) if bad.any() else score
+
+            return log_likelihood
+
+        gamma, nu = self._weighted(tac_names, base_gamma), self._weighted(cam_names, base_nu)
+        log_likelihood = make_log_likelihood(gamma, nu)
         # kept for diagnostics: the likelihood (and IoUs) at any pose, e.g. the ground truth's
         self.last_log_likelihood, self.last_ious = log_likelihood, ious
-        if not tac_names and not cam_names and not contact:
-            result = self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
-        elif f.refine_iterations > 0:
-            result = self._filter_frame(ps, first, contact, log_likelihood)
-        else:
-            predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
-            result = self.pf.update(predicted, log_likelihood)
+        has_obs = bool(tac_names or cam_names)
+        result = self._filter_update(ps, first, contact, has_obs, log_likelihood)
+        warnings = step_warnings(frame.index, _with_counts(result.diagnostics, scored), f.num_particles)
+        flags = [fl for fl in result.flags if fl != "estimate_jump"]  # ``step`` checks the jump against the last frame
+
+        # a sensor that keeps disagreeing with all the others gets its weight scaled down from
+        # the next frame on; if its pull had biased the belief, the other sensors draw it back
+        # through the filter and the re-search check (restarting from the grasp prior at that
+        # frame was no better on logs with one pad's image flipped: conn1 3.9 deg against 1.5
+        # deg this way after 14 frames, conn2 2.5 against 3.7)
+        sensor_iou, informative = self._agreement(result.estimate, ious, tac_names + cam_names, crops, outside)
+        for name, iou, others in self.consistency.observe(sensor_iou, informative):
+            what = "tactile sensor" if name in tac_names else "camera"
+            warnings.append(warning(
+                frame.index, "sensor_downweighted",
+                f"{what} {name!r} disagreed with the other sensors for {self.consistency.frames} frames in a row "
+                f"(IoU of its mask at the estimate {iou:.2f}, the others' median {others:.2f}): its weight is "
+                f"scaled by {self.consistency.factor:g} from frame {frame.index + 1} on",
+                sensor=name, iou_at_estimate=iou, others_median_iou=others, weight_factor=self.consistency.factor,
+            ))
+            flags.append("sensor_downweighted")
+
         self.particles = result.particles
         est = result.estimate
         keep = self.rng.choice(len(result.particles.poses), size=min(_PARTICLES_IN_TRACK, len(result.particles.poses)), replace=False)
@@ -377,9 +446,57 @@ class Estimator:
         return FrameEstimate(
             index=frame.index, stamp_ns=frame.stamp_ns, T_ee_object=est, T_world_object=T_world_ee @ est,
             covariance=result.spread.covariance, ess=float(result.ess), contact=frame.contact,
-            sensors=tuple(tac_names + cam_names), flags=tuple(result.flags), mask_mode=mask_mode,
+            sensors=tuple(tac_names + cam_names), flags=tuple(dict.fromkeys(flags)), mask_mode=mask_mode,
             particles_world=T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
+            warnings=tuple(warnings), sensor_iou=sensor_iou,
+            consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
         )
+
+    def restore_consistency(self, state: dict) -> None:
+        """Continue the sensor consistency watch from a frame's ``FrameEstimate.consistency``
+        (a resumed run then scales the same sensors down at the same frames)."""
+        self.consistency.factors = dict(state.get("factors", {}))
+        self.consistency.streak = dict(state.get("streak", {}))
+
+    def _filter_update(self, ps: ParticleSet, first: bool, contact, has_obs: bool, log_likelihood):
+        """The frame's filter update: a plain prediction without observations, else the
+        search + tempered refinement (``_filter_frame``) or Algorithm 3's single update."""
+        f = self.cfg.filter
+        if not has_obs and not contact:
+            return self.pf.step(ps, bool(contact), lambda T: np.zeros(len(T)), refine_iterations=0)
+        if f.refine_iterations > 0:
+            return self._filter_frame(ps, first, contact, log_likelihood)
+        predicted = self._initial_search(log_likelihood) if first else self.pf.predict(ps, bool(contact))
+        return self.pf.update(predicted, log_likelihood)
+
+    def _weighted(self, names: list[str], weights: np.ndarray) -> np.ndarray:
+        """Eq. 1-2 weights (n,) of one modality's sensors with the consistency watch's
+        factors applied; while a sensor of the modality keeps its full weight, the
+        modality's share is kept (the others take up what a scaled-down sensor loses, as
+        if it were absent)."""
+        factors = np.array([self.consistency.weight_factor(n) for n in names])
+        if not np.any(factors != 1.0):
+            return weights
+        scaled = weights * factors
+        full = factors == 1.0
+        if np.any(full) and scaled.sum() > 0:
+            scaled[full] *= (weights.sum() - scaled[~full].sum()) / scaled[full].sum()
+        return scaled
+
+    def _agreement(self, T_ee_obj: np.ndarray, ious, names: list[str], crops: dict, outside: dict) -> tuple[dict, dict]:
+        """Per sensor: the IoU of its observed mask with the mask rendered at the estimate
+        ``T_ee_obj`` (4, 4), and whether it is informative (not both masks empty)."""
+        iou_t, iou_v = ious(T_ee_obj[None])
+        values = np.concatenate([iou_t[0], iou_v[0]])
+        iou = {n: float(v) for n, v in zip(names, values)}
+        informative = {n: bool(crops[n].any() or outside[n] > 0 or iou[n] < 1.0) for n in names}
+        return iou, informative
+
+
+def _with_counts(diagnostics: dict, scored: dict) -> dict:
+    """A step's diagnostics with the invalid / evaluated counts of every likelihood call of
+    the frame (searches included), which the estimator's likelihood counts itself."""
+    return {**diagnostics, "invalid_log_likelihood": scored["invalid"], "evaluated_poses": scored["evaluated"]}
 
 
 def roi_image(image: np.ndarray, roi: Roi) -> np.ndarray:
@@ -414,35 +531,122 @@ def apply_options(cfg: Config, options: EstimateOptions) -> Config:
 
 def estimate(
     log_path: Path, cfg: Config, out_dir: Path, options: EstimateOptions = EstimateOptions(),
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, *, resume: bool = False,
 ) -> dict:
     """Run the filter over ``log_path`` and write track.mcap, track.csv, summary.json and
-    config.resolved.yaml into ``out_dir``; returns the summary."""
+    config.resolved.yaml into ``out_dir``; returns the summary.
+
+    Every completed frame is checkpointed in ``out_dir/.mvtop-checkpoint`` (see
+    ``checkpoint``) and its result kept there, not in memory. ``resume`` continues from that
+    checkpoint's last frame (the outputs are those of an uninterrupted run with the same seed);
+    without it an existing checkpoint is discarded. The checkpoint is removed once the outputs
+    are written, and when a fresh run fails (a resumed run keeps it). Ctrl-C or
+    ``checkpoint.Terminated`` (SIGTERM) raise ``checkpoint.EstimateInterrupted`` saying how
+    many frames are checkpointed.
+    """
     cfg = apply_options(cfg, options)
     t_start = time.perf_counter()
-    scene = SceneModel(cfg, build_contact="contact" in cfg.modalities)
     sensors = sensor_topics(cfg)
     if not sensors and "contact" not in cfg.modalities:
         raise EstimationError("no sensor is enabled: check modalities and sensors in the config")
-    results: list[FrameEstimate] = []
-    with McapLog(log_path) as log:
-        reader = FrameReader(log, sensors, log_topics(cfg))
-        total = _count_frames(log, sensors, options.max_frames)
-        estimator = Estimator(cfg, scene, lambda frame, t: reader.tf.lookup(cfg.frames.world, frame, t))
-        for frame in reader:
-            results.append(estimator.step(frame))
-            if progress is not None:
-                progress(len(results), total)
-            if options.max_frames is not None and len(results) >= options.max_frames:
-                break
-        skipped = list(reader.skipped)
-    if not results:
-        raise EstimationError(f"{log_path}: no frame with the configured sensors could be read")
-    elapsed = time.perf_counter() - t_start
-    out_dir.mkdir(parents=True, exist_ok=True)
-    summary = _summary(results, cfg, log_path, elapsed, skipped)
-    write_track(out_dir, results, cfg, summary)
+    fp = fingerprint(log_path, cfg)
+    # A resumed run checks its checkpoint first (missing, or another run's: one line at once);
+    # a fresh run starts one once its inputs have loaded, and removes it on an error.
+    ck, restored = Checkpoint.start(out_dir, fp, resume=True) if resume else (None, None)
+    created = False
+    total = 0
+    try:
+        scene = SceneModel(cfg, build_contact="contact" in cfg.modalities)
+        with McapLog(log_path) as log:
+            reader = FrameReader(log, sensors, log_topics(cfg))
+            total = _count_frames(log, sensors, options.max_frames)
+            estimator = Estimator(cfg, scene, lambda frame, t: reader.tf.lookup(cfg.frames.world, frame, t))
+            if ck is None:
+                created = not out_dir.exists()
+                out_dir.mkdir(parents=True, exist_ok=True)
+                ck, restored = Checkpoint.start(out_dir, fp, resume=False)
+            _run_frames(reader, estimator, ck, restored, options.max_frames, total, progress, t_start)
+            skipped = list(reader.skipped)
+            if not ck.frames_done:
+                raise EstimationError(f"{log_path}: no frame with the configured sensors could be read")
+    except KeyboardInterrupt as err:
+        if ck is None:
+            raise
+        ck.close()
+        if not ck.frames_done and not resume:  # nothing to resume: leave nothing behind
+            ck.remove()
+            if created:
+                _remove_if_empty(out_dir)
+        raise EstimateInterrupted(ck.frames_done, total, ck.dir, "frames", _signum(err)) from None
+    except BaseException:
+        if ck is not None and not resume:
+            ck.remove()
+        if created:
+            _remove_if_empty(out_dir)
+        if ck is not None:
+            ck.close()
+        raise
+    elapsed = restored.elapsed_s + time.perf_counter() - t_start
+    results = ck.results(options.max_frames)
+    try:
+        summary = _summary(results, cfg, log_path, elapsed, skipped, scene.warnings)
+        summary["resumed_at_frame"] = restored.frames_done
+        summary["checkpoint_ms_per_frame"] = round(1e3 * ck.write_seconds / max(ck.writes, 1), 3)
+        write_track(out_dir, results, cfg, summary)
+    except KeyboardInterrupt as err:
+        ck.close()
+        raise EstimateInterrupted(len(results), total, ck.dir, "outputs", _signum(err)) from None
+    ck.remove()
     return summary
+
+
+def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, restored: Restored,
+                max_frames: int | None, total: int, progress: Callable[[int, int], None] | None, t_start: float) -> None:
+    """The frame loop: replay the ``restored.frames_done`` frames a resumed run has done
+    (the reader's grouping and skip list, and the tactile reference images, come out as in
+    the first run), restore the particles and the generator, then step the filter and
+    checkpoint each further frame."""
+    done = restored.frames_done
+    if restored.particles is not None:
+        estimator.particles = restored.particles
+    if restored.rng_state is not None:
+        estimator.rng.bit_generator.state = restored.rng_state  # the filter's generator too (one object)
+    if done:  # the state the last completed frame carried over, kept in its journal record
+        estimator.restore_consistency(ck.results()[done - 1].consistency)
+    if progress is not None:  # at once, from the resumed frame (0 for a fresh run)
+        progress(min(done, total), total)
+    primed: set[str] = set()
+    n = 0
+    for frame in reader:
+        if n < done:
+            _prime_observer(estimator, frame, primed)
+        else:
+            result = estimator.step(frame)
+            ck.record(result, estimator.particles, estimator.rng, restored.elapsed_s + time.perf_counter() - t_start)
+            if progress is not None:
+                progress(n + 1, total)
+        n += 1
+        if max_frames is not None and n >= max_frames:
+            break
+
+
+def _prime_observer(estimator: Estimator, frame: Frame, primed: set[str]) -> None:
+    """On a replayed frame, let the observer see each tactile sensor's first image: the
+    colour-difference masks use it as the no-contact reference (see ``Observer``)."""
+    for name, img in frame.tactile.items():
+        if name not in primed:
+            primed.add(name)
+            if img.depth is None:
+                estimator.observer.tactile_mask(img)
+
+
+def _signum(err: BaseException) -> int:
+    return int(getattr(err, "signum", signal.SIGINT))
+
+
+def _remove_if_empty(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        folder.rmdir()
 
 
 def _count_frames(log: McapLog, sensors: list[SensorTopics], max_frames: int | None) -> int:
@@ -451,14 +655,23 @@ def _count_frames(log: McapLog, sensors: list[SensorTopics], max_frames: int | N
     return min(n, max_frames) if max_frames else n
 
 
-def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped) -> dict:
+def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped,
+             run_warnings: list[dict] | tuple = ()) -> dict:
+    """The run's summary.json. ``run_warnings``: warnings not tied to a frame (meshes, units),
+    reported with the frames' failure-mode warnings under ``warnings`` (counted per kind in
+    ``warning_counts``); ``sensors`` gives each sensor's agreement with the estimate and
+    weight factor (see filter/health.py)."""
     last = results[-1]
     q = se3.to_quat_xyzw(last.T_world_object)
     qe = se3.to_quat_xyzw(last.T_ee_object)
     flags: dict[str, int] = {}
+    warnings = list(run_warnings)
+    agreement = []
     for r in results:
         for fl in r.flags:
             flags[fl] = flags.get(fl, 0) + 1
+        warnings.extend(r.warnings)
+        agreement.append((r.index, getattr(r, "sensor_iou", {})))
     out = {
         "log": str(log_path),
         "object": cfg.object.name,
@@ -480,6 +693,9 @@ def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed:
             "ess": last.ess,
         },
         "flags": flags,
+        "warnings": warnings,
+        "warning_counts": count_warnings(warnings),
+        "sensors": sensor_report(agreement, warnings),
     }
     if last.T_world_object_gt is not None:
         dt = last.T_world_object[:3, 3] - last.T_world_object_gt[:3, 3]
@@ -488,6 +704,11 @@ def _summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed:
             np.degrees(se3.rotation_angle(last.T_world_object[:3, :3], last.T_world_object_gt[:3, :3]))
         )
     return out
+
+
+def warning_report(summary: dict) -> list[str]:
+    """The summary's warnings for the terminal: one line per kind, saying in how many frames."""
+    return warning_lines(summary.get("warnings", []), summary["frames_processed"])
 
 
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:

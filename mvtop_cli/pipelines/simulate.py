@@ -4,6 +4,11 @@ The log carries what a real setup records (see docs/log-format.md) plus the grou
 object pose: two RGB cameras, two GelSight-like tactile sensors (image and indentation depth),
 TF, finger joint states, the contact flag, the wrench, and ``/ground_truth/object_pose``.
 The same options and seed give a byte-identical file.
+
+Options reproduce how real setups record (docs/recording.md): raw or compressed images, lens
+distortion, the end effector at the end of a robot's TF chain or only as joint states plus
+a URDF (``KINEMATICS``), and sensors at different rates with dropped images and unsynchronised
+capture times (``SensorTiming``).
 """
 
 from __future__ import annotations
@@ -20,15 +25,25 @@ from ..errors import MvtopError
 from ..geometry import se3
 from ..io.mcap_writer import LogWriter
 from ..sim import gripper as grip
+from ..sim import robot
 from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects
-from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode
+from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode, state_at
 from ..sim.objects import get_object
 from ..sim.scene import board_mesh, camera_placements, receptacle_pose, table_mesh
 from ..sim.tactile import make_background, render_tactile_image
+from ..sim.timing import SensorTiming, capture_schedule
 
 TACTILE_SIDES = ("left", "right")
 INDENTATION_STEP_M = 1e-6
-FINGER_JOINTS = ("finger_left_joint", "finger_right_joint")
+FINGER_JOINTS = robot.FINGER_JOINTS
+# How the log gives the end effector's pose.
+KINEMATICS = {
+    "ee-tf": "one world -> ee transform on /tf (and ee -> fingers)",
+    "tf-chain": "a gantry robot's links: world -> base_link (static) -> six moving links -> flange -> tool0 -> ee "
+                "(static), fingers on /tf",
+    "joint-states": "no robot TF: /joint_states of the gantry and its fingers, with the robot's URDF (robot.urdf)",
+}
+URDF_FILE = f"{robot.ROBOT_NAME}.urdf"  # written beside the scene config
 
 
 @dataclass(frozen=True)
@@ -50,6 +65,8 @@ class SimulateOptions:
     gel_distance_m: float = 0.025
     tactile_noise_std: float = 1.5
     compression: str = "zstd"
+    kinematics: str = "ee-tf"  # how the log gives the end effector: a key of KINEMATICS
+    timing: SensorTiming = field(default_factory=SensorTiming)  # sensor rates, dropped images, capture jitter
 
 
 @dataclass(frozen=True)
@@ -83,13 +100,22 @@ def simulate(
     """Simulate one episode of ``object_name`` with ``seed`` and write the log to ``out``."""
     if options.image_format not in ("jpeg", "png", "raw") or options.tactile_format not in ("jpeg", "png", "raw"):
         raise MvtopError(f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}")
+    if options.kinematics not in KINEMATICS:
+        raise MvtopError(f"kinematics must be one of {', '.join(KINEMATICS)}, got {options.kinematics!r}")
     spec = get_object(object_name)
     rng = np.random.default_rng(seed)
     ep_rng, cam_rng, tac_rng, scene_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=4))
+    timing_rng = np.random.default_rng(rng.integers(0, 2**63))  # drawn after the others: they stay as they were
 
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     collider = Collider(spec.mesh, [(spec.receptacle_mesh, T_world_rec), (board_mesh(), np.eye(4))])
     states = plan_episode(T_world_rec, spec.insertion_depth_m, spec.grasp, spec.mesh, collider, options.episode, ep_rng)
+    sensors = [("front", "camera"), ("side", "camera")] + [(s, "tactile") for s in TACTILE_SIDES]
+    try:
+        schedule = capture_schedule([s.stamp_ns for s in states], sensors, options.timing, timing_rng)
+    except ValueError as err:
+        raise MvtopError(f"sensor timing: {err}") from None
+    robot_states = _robot_samples(states, options.timing)
 
     target = T_world_rec[:3, 3] + np.array([0.0, 0.0, 0.012])
     cameras = camera_placements(target, options.width, options.height)
@@ -123,45 +149,90 @@ def simulate(
     backgrounds = {side: make_background(tac_camera.height, tac_camera.width, tac_rng) for side in TACTILE_SIDES}
 
     key_dir = se3.make_pose(se3.rotvec_to_matrix(np.array([np.radians(-50.0), np.radians(25.0), 0.0])), np.zeros(3))
-    t0 = states[0].stamp_ns
+    t0 = robot_states[0].stamp_ns
     try:
         with LogWriter(out, compression=options.compression) as log:
             static = [(("world", f"{c.name}_optical", c.T_world_camera)) for c in cameras]
-            static += [(f"finger_{s}", f"tactile_{s}_optical", T_finger_tac) for s in TACTILE_SIDES]
+            if options.kinematics == "tf-chain":
+                static += robot.static_transforms()
+            elif options.kinematics == "joint-states":  # the URDF carries everything past base_link
+                static += robot.static_transforms()[:1]
+            if options.kinematics != "joint-states":
+                static += [(f"finger_{s}", f"tactile_{s}_optical", T_finger_tac) for s in TACTILE_SIDES]
             log.write_tf(static, t0, static=True)
+            for st in (s for s in robot_states if s.stamp_ns < states[0].stamp_ns):  # held before the frames
+                _write_robot(log, st, options.kinematics)
             for k, st in enumerate(states):
-                _write_frame(log, st, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
-                             backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
+                _write_robot(log, st, options.kinematics)
+                _write_images(log, st, schedule[k], states, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac,
+                              mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
                 if progress is not None:
                     progress(k + 1, len(states))
+            for st in (s for s in robot_states if s.stamp_ns > states[-1].stamp_ns):  # held after them
+                _write_robot(log, st, options.kinematics)
     finally:
         cam_renderer.close()
         tac_renderer.close()
     return SimulationSummary(Path(out), len(states), sum(s.contact for s in states), os.path.getsize(out))
 
 
-def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px,
-                 backgrounds, cables, key_dir, options: SimulateOptions, cam_rng, tac_rng, lens=None) -> None:
+def _robot_samples(states: list[EpisodeState], timing: SensorTiming) -> list[EpisodeState]:
+    """The states the robot's streams (TF or joint states, contact, wrench, ground truth)
+    publish: one per frame; with capture jitter also one a period before the first frame and
+    one after the last (the robot at rest there), so every capture lies within the recorded
+    motion, as with a recorder started before the sensors and stopped after them."""
+    if timing.jitter_s == 0.0 or len(states) < 2:
+        return list(states)
+    dt = states[1].stamp_ns - states[0].stamp_ns
+    return ([replace(states[0], stamp_ns=states[0].stamp_ns - dt)] + list(states)
+            + [replace(states[-1], stamp_ns=states[-1].stamp_ns + dt)])
+
+
+def _write_robot(log, st: EpisodeState, kinematics: str) -> None:
+    """The robot's streams at ``st``: the end effector as ``kinematics`` says (see
+    KINEMATICS), joint states, contact, wrench and the ground-truth object pose."""
     t = st.stamp_ns
-    T_world_obj = st.T_world_object
     T_ee_fingers = grip.finger_poses(st.finger_opening_m)
-    log.write_tf(
-        [("world", "ee", st.T_world_ee)] + [("ee", f"finger_{s}", T_ee_fingers[s]) for s in TACTILE_SIDES], t
-    )
-    log.write_joint_state("/joint_states", FINGER_JOINTS, [st.pad_left_y_m, -st.pad_right_y_m], t)
+    fingers = [("ee", f"finger_{s}", T_ee_fingers[s]) for s in TACTILE_SIDES]
+    finger_q = robot.finger_joint_values(st.pad_left_y_m, st.pad_right_y_m)
+    if kinematics == "ee-tf":
+        log.write_tf([("world", "ee", st.T_world_ee)] + fingers, t)
+        log.write_joint_state("/joint_states", FINGER_JOINTS, finger_q, t)
+    else:
+        q = robot.inverse_kinematics(st.T_world_ee)
+        if kinematics == "tf-chain":
+            log.write_tf(robot.arm_transforms(q) + fingers, t)
+        log.write_joint_state("/joint_states", robot.ARM_JOINTS + FINGER_JOINTS, [float(v) for v in q] + finger_q, t)
     log.write_bool("/contact", bool(st.contact), t)
     log.write_wrench("/wrench", [0.0, 0.0, st.press_force_n], [0.0, 0.0, 0.0], t, "ee")
-    log.write_pose("/ground_truth/object_pose", T_world_obj, t, "world")
+    log.write_pose("/ground_truth/object_pose", st.T_world_object, t, "world")
 
-    cam_renderer.set_pose("object", T_world_obj)
-    for s in TACTILE_SIDES:
-        cam_renderer.set_pose(f"finger_{s}", st.T_world_ee @ T_ee_fingers[s])
-    for i, (_, T_obj_cable) in enumerate(cables):
-        cam_renderer.set_pose(f"cable{i}", T_world_obj @ T_obj_cable)
+
+def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states: list[EpisodeState], cameras,
+                  cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px, backgrounds, cables, key_dir,
+                  options: SimulateOptions, cam_rng, tac_rng, lens=None) -> None:
+    """The images of frame ``st``: each sensor in ``capture`` renders the scene at its capture
+    time (the frame's own state when that is the frame's time) and stamps it with that time;
+    sensors whose capture is None publish nothing."""
+
+    def at(t: int) -> EpisodeState:
+        return st if t == st.stamp_ns else state_at(states, t)
+
     exposure = float(np.exp(cam_rng.normal(0.0, options.exposure_jitter))) if options.exposure_jitter > 0 else 1.0
-    cam_renderer.set_lights(key_dir, T_world_obj[:3, 3] + np.array([-0.15, -0.25, 0.35]), 3.0, 1.2)
+    cam_renderer.set_lights(key_dir, st.T_world_object[:3, 3] + np.array([-0.15, -0.25, 0.35]), 3.0, 1.2)
     photo = PhotometricOptions(exposure=exposure, noise_std=options.noise_std)
     for cam in cameras:
+        t = capture[cam.name]
+        if t is None:
+            continue
+        s = at(t)
+        T_world_obj = s.T_world_object
+        T_ee_fingers = grip.finger_poses(s.finger_opening_m)
+        cam_renderer.set_pose("object", T_world_obj)
+        for side in TACTILE_SIDES:
+            cam_renderer.set_pose(f"finger_{side}", s.T_world_ee @ T_ee_fingers[side])
+        for i, (_, T_obj_cable) in enumerate(cables):
+            cam_renderer.set_pose(f"cable{i}", T_world_obj @ T_obj_cable)
         linear, _ = cam_renderer.render(replace(cam.camera, distortion=np.zeros(5)), cam.T_world_camera)
         if lens is not None:  # the pinhole render seen through the lens
             import cv2
@@ -171,16 +242,20 @@ def _write_frame(log, st: EpisodeState, cameras, cam_renderer, tac_renderer, tac
         _write_rgb(log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality)
         log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")
 
-    for s in TACTILE_SIDES:
-        T_world_tac = st.T_world_ee @ T_ee_fingers[s] @ T_finger_tac
-        tac_renderer.set_pose("object", T_world_obj)
+    for side in TACTILE_SIDES:
+        t = capture[side]
+        if t is None:
+            continue
+        s = at(t)
+        T_world_tac = s.T_world_ee @ grip.finger_poses(s.finger_opening_m)[side] @ T_finger_tac
+        tac_renderer.set_pose("object", s.T_world_object)
         depth = tac_renderer.render_depth_only(tac_camera, T_world_tac, only="object")
         indentation = indentation_from_depth(depth, options.gel_distance_m)
-        img = render_tactile_image(indentation, mm_per_px, backgrounds[s], tac_rng, noise_std=options.tactile_noise_std)
-        frame_id = f"tactile_{s}_optical"
-        _write_rgb(log, f"/tactile/{s}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
-        log.write_depth(f"/tactile/{s}/depth", indentation, t, frame_id)
-        log.write_camera_info(f"/tactile/{s}/camera_info", tac_camera, t, frame_id)
+        img = render_tactile_image(indentation, mm_per_px, backgrounds[side], tac_rng, noise_std=options.tactile_noise_std)
+        frame_id = f"tactile_{side}_optical"
+        _write_rgb(log, f"/tactile/{side}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
+        log.write_depth(f"/tactile/{side}/depth", indentation, t, frame_id)
+        log.write_camera_info(f"/tactile/{side}/camera_info", tac_camera, t, frame_id)
 
 
 def distortion_maps(camera) -> tuple[np.ndarray, np.ndarray]:
@@ -211,9 +286,19 @@ def _write_rgb(log, base_topic: str, rgb: np.ndarray, t: int, frame_id: str, fmt
         log.write_compressed_image(f"{base_topic}/compressed", rgb, t, frame_id, fmt=fmt, jpeg_quality=quality)
 
 
-def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: float = 0.025) -> dict:
+def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: float | None = None,
+                 options: SimulateOptions | None = None) -> dict:
     """The YAML config (as plain data) that describes the simulated scene of ``object_name`` so
-    that ``mvtop estimate`` runs on its logs; mesh paths are relative to the config file."""
+    that ``mvtop estimate`` runs on its logs; mesh paths are relative to the config file.
+
+    ``options`` (default: SimulateOptions()) are those the logs were simulated with: they
+    decide the image topics (compressed or raw), the gel distance [m] (unless
+    ``gel_distance_m`` is given) and, for ``kinematics="joint-states"``, ``robot.urdf``
+    (``URDF_FILE`` beside the config, see :func:`write_scene_config`)."""
+    options = options or SimulateOptions()
+    if gel_distance_m is None:
+        gel_distance_m = options.gel_distance_m
+    suffix = {fmt: "" if fmt == "raw" else "/compressed" for fmt in ("jpeg", "png", "raw")}
     spec = get_object(object_name)
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     from ..config import PoseSpec
@@ -226,16 +311,16 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     for S in spec.symmetry[1:]:
         sym.append(pose(S))
     cameras = [
-        {"name": n, "image_topic": f"/cameras/{n}/image/compressed", "info_topic": f"/cameras/{n}/camera_info",
+        {"name": n, "image_topic": f"/cameras/{n}/image{suffix[options.image_format]}", "info_topic": f"/cameras/{n}/camera_info",
          "frame": f"{n}_optical"}
         for n in ("front", "side")
     ]
     tactile = [
-        {"name": s, "image_topic": f"/tactile/{s}/image/compressed", "info_topic": f"/tactile/{s}/camera_info",
+        {"name": s, "image_topic": f"/tactile/{s}/image{suffix[options.tactile_format]}", "info_topic": f"/tactile/{s}/camera_info",
          "depth_topic": f"/tactile/{s}/depth", "frame": f"tactile_{s}_optical", "gel_distance_m": gel_distance_m}
         for s in TACTILE_SIDES
     ]
-    return {
+    cfg = {
         "object": {
             "name": object_name,
             "mesh": f"{mesh_dir}/{object_name}.obj",
@@ -254,6 +339,9 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
         "sensors": {"cameras": cameras, "tactile": tactile},
         "grasp_prior": {"pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0},
     }
+    if options.kinematics == "joint-states":
+        cfg["robot"] = {"urdf": URDF_FILE}
+    return cfg
 
 
 def export_scene_meshes(out_dir: Path, objects: list[str] | None = None) -> list[Path]:
@@ -274,18 +362,24 @@ def export_scene_meshes(out_dir: Path, objects: list[str] | None = None) -> list
     return [write_obj(mesh, out_dir / f"{name}.obj", name) for name, mesh in meshes.items()]
 
 
-def write_scene_config(object_name: str, path: Path) -> Path:
-    """Write the scene config of ``object_name`` to ``path`` and its meshes to ``meshes/`` beside it."""
+def write_scene_config(object_name: str, path: Path, options: SimulateOptions | None = None) -> Path:
+    """Write the scene config of ``object_name`` for logs simulated with ``options`` to
+    ``path``, its meshes to ``meshes/`` beside it and, for ``kinematics="joint-states"``, the
+    robot's URDF (``URDF_FILE``) beside it."""
     import yaml
 
     from ..io.atomic import atomic_output
 
+    options = options or SimulateOptions()
     path = Path(path)
     export_scene_meshes(path.parent / "meshes", [object_name])
+    if options.kinematics == "joint-states":
+        with atomic_output(path.parent / URDF_FILE) as fh:
+            fh.write(robot.urdf_text(options.gel_distance_m).encode())
     text = (
         f"# mvtop config for the simulated {object_name} scene (mvtop simulate --object {object_name}).\n"
         "# Units: metres and degrees as the key names say; mesh paths are relative to this file.\n"
-        + yaml.safe_dump(scene_config(object_name), sort_keys=False, default_flow_style=None)
+        + yaml.safe_dump(scene_config(object_name, options=options), sort_keys=False, default_flow_style=None)
     )
     with atomic_output(path) as fh:
         fh.write(text.encode())

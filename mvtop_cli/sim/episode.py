@@ -206,3 +206,28 @@ def _descend_until_contact(T_free: np.ndarray, T_target: np.ndarray, T_ee_obj: n
     T = T_free.copy()
     T[:3, 3] = (1 - lo) * T_free[:3, 3] + lo * T_target[:3, 3]
     return T, collider.distance(T @ T_ee_obj)
+
+
+def state_at(states: list[EpisodeState], t_ns: int) -> EpisodeState:
+    """The episode at time ``t_ns`` between its frames: end effector and object each
+    interpolated in world (linear translation, slerp rotation, as a TF or ground-truth
+    reader interpolates them), pad positions linearly; contact, distance and force those of
+    the frame at or before ``t_ns``. Before the first frame or after the last, that frame."""
+    stamps = np.array([s.stamp_ns for s in states], dtype=np.int64)
+    i = int(np.searchsorted(stamps, t_ns, side="right")) - 1
+    if i < 0:
+        return states[0]
+    if i >= len(states) - 1 or t_ns == stamps[i]:
+        return states[i]
+    a, b = states[i], states[i + 1]
+    alpha = (t_ns - int(stamps[i])) / (int(stamps[i + 1]) - int(stamps[i]))
+    T_world_ee = se3.interpolate(a.T_world_ee, b.T_world_ee, alpha)
+    T_world_obj = se3.interpolate(a.T_world_object, b.T_world_object, alpha)
+
+    def lerp(x: float, y: float) -> float:
+        return (1.0 - alpha) * x + alpha * y
+
+    return EpisodeState(
+        int(t_ns), T_world_ee, se3.invert(T_world_ee) @ T_world_obj, lerp(a.pad_left_y_m, b.pad_left_y_m),
+        lerp(a.pad_right_y_m, b.pad_right_y_m), a.contact, a.distance_m, a.press_force_n,
+    )

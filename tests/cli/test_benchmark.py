@@ -40,3 +40,29 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert again.returncode == 0, again.stderr
     assert result.stat().st_mtime_ns == stamp  # resumed: the finished run was not redone
     assert (out / "summary.md").read_text() in again.stdout
+
+
+def test_benchmark_accuracy_box_plots_one_box_per_object_and_method(tmp_path):
+    import re
+
+    import numpy as np
+
+    out = tmp_path / "bench"
+    objects, methods = ("conn2", "conn1"), ("M-TOP", "M-VOP")
+    proc = run("benchmark", "accuracy", "--out", str(out), "--objects", ",".join(objects), "--poses", "2",
+               "--methods", ",".join(methods), "--frames", "4", "--particles", "30")
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "summary.html").read_text()
+    svgs = re.findall(r"<svg .*?</svg>", page, flags=re.S)
+    assert len(svgs) == 3  # bounding-box pose error, translation error, rotation error
+    assert "log scale" in svgs[0] and "bounding-box" in svgs[0]
+    for svg, key in zip(svgs, ("pose_error_mm", "translation_error_mm", "rotation_error_deg")):
+        boxes = re.findall(r'<g class="box" data-group="([^"]+)" data-series="([^"]+)" data-n="(\d+)" '
+                           r'data-median="([^"]+)">', svg)
+        assert sorted((g, s) for g, s, _, _ in boxes) == sorted((o, m) for o in objects for m in methods)
+        for obj, method, n, median in boxes:
+            values = [json.loads((out / "runs" / f"{obj}_{seed}_{method}" / "result.json").read_text())["final"][key]
+                      for seed in (1000, 1001)]
+            assert int(n) == 2
+            assert abs(float(median) - float(np.median(values))) < 1e-12
+    assert "| method | conn2 | conn1 |" in proc.stdout and "Time per run" in proc.stdout
