@@ -181,6 +181,43 @@ def render_markdown(report: dict) -> str:
 _COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b")
 
 
+class _LogAxis:
+    """A logarithmic y axis spanning whole decades around the positive ``values``. Values
+    <= 0 (a perfect estimate has no logarithm) are drawn on the bottom edge, a decade below
+    the smallest positive value, labelled "<=" (``has_zero``)."""
+
+    def __init__(self, values: np.ndarray, has_zero: bool) -> None:
+        pos = np.asarray(values, dtype=np.float64)
+        if len(pos) == 0:
+            pos = np.array([1e-3, 1.0])
+        self.lo_dec = math.floor(math.log10(pos.min())) - (1 if has_zero else 0)
+        self.hi_dec = max(math.ceil(math.log10(pos.max())), self.lo_dec + 1)
+        self.has_zero = has_zero
+        self.floor = 10.0 ** self.lo_dec
+
+    def y(self, v: float, top: float, plot_height: float) -> float:
+        """Pixel row of value ``v`` in a plot area starting at row ``top``."""
+        v = max(v, self.floor) if math.isfinite(v) else self.floor
+        return top + (self.hi_dec - math.log10(v)) / (self.hi_dec - self.lo_dec) * plot_height
+
+    def frame(self, width: int, height: int, ml: float, mt: float, pw: float, ph: float, title: str) -> list[str]:
+        """The SVG's opening tags: title, plot frame, decade grid lines and labels, minor ticks."""
+        out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
+               'font-family="sans-serif" font-size="11">',
+               f'<text x="{ml}" y="16" font-size="13" font-weight="bold">{html.escape(title)}</text>',
+               f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>']
+        for d in range(self.lo_dec, self.hi_dec + 1):
+            y = self.y(10.0 ** d, mt, ph)
+            out.append(f'<line x1="{ml}" x2="{ml + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd"/>')
+            le = "≤" if self.has_zero and d == self.lo_dec else ""
+            out.append(f'<text x="{ml - 6}" y="{y + 4:.1f}" text-anchor="end">{le}1e{d}</text>')
+            for m in range(2, 10):
+                if d < self.hi_dec:
+                    ym = self.y(m * 10.0 ** d, mt, ph)
+                    out.append(f'<line x1="{ml}" x2="{ml + 4}" y1="{ym:.1f}" y2="{ym:.1f}" stroke="#999"/>')
+        return out
+
+
 def svg_log_plot(
     x: Sequence[float],
     series: Sequence[tuple[str, Sequence[float | None], bool]],
@@ -201,18 +238,7 @@ def svg_log_plot(
     xs = np.asarray(x, dtype=np.float64)
     vals = [np.array([np.nan if v is None else float(v) for v in s], dtype=np.float64) for _, s, _ in series]
     pos = np.concatenate([v[np.isfinite(v) & (v > 0)] for v in vals] + [np.array([h for _, h in hlines if h > 0])])
-    if len(pos) == 0:
-        pos = np.array([1e-3, 1.0])
-    lo_dec = math.floor(math.log10(pos.min()))
-    hi_dec = math.ceil(math.log10(pos.max()))
-    # Zero errors have no logarithm: draw them on the bottom edge, a decade below the
-    # smallest positive value, labelled "<=".
-    has_zero = any(np.any(np.isfinite(v) & (v <= 0)) for v in vals)
-    if has_zero:
-        lo_dec -= 1
-    if hi_dec <= lo_dec:
-        hi_dec = lo_dec + 1
-    floor = 10.0 ** lo_dec
+    axis = _LogAxis(pos, any(np.any(np.isfinite(v) & (v <= 0)) for v in vals))
     ml, mr, mt, mb = 64, 170, 28, 42
     pw, ph = width - ml - mr, height - mt - mb
     x0, x1 = (float(xs.min()), float(xs.max())) if len(xs) else (0.0, 1.0)
@@ -223,22 +249,9 @@ def svg_log_plot(
         return ml + (v - x0) / (x1 - x0) * pw
 
     def py(v: float) -> float:
-        v = max(v, floor) if math.isfinite(v) else floor
-        return mt + (hi_dec - math.log10(v)) / (hi_dec - lo_dec) * ph
+        return axis.y(v, mt, ph)
 
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
-           'font-family="sans-serif" font-size="11">',
-           f'<text x="{ml}" y="16" font-size="13" font-weight="bold">{html.escape(title)}</text>',
-           f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>']
-    for d in range(lo_dec, hi_dec + 1):
-        y = py(10.0 ** d)
-        out.append(f'<line x1="{ml}" x2="{ml + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd"/>')
-        le = "≤" if has_zero and d == lo_dec else ""
-        out.append(f'<text x="{ml - 6}" y="{y + 4:.1f}" text-anchor="end">{le}1e{d}</text>')
-        for m in range(2, 10):
-            if d < hi_dec:
-                ym = py(m * 10.0 ** d)
-                out.append(f'<line x1="{ml}" x2="{ml + 4}" y1="{ym:.1f}" y2="{ym:.1f}" stroke="#999"/>')
+    out = axis.frame(width, height, ml, mt, pw, ph, title)
     for t in np.linspace(x0, x1, 6):
         out.append(f'<line x1="{px(t):.1f}" x2="{px(t):.1f}" y1="{mt + ph}" y2="{mt + ph + 4}" stroke="#444"/>')
         out.append(f'<text x="{px(t):.1f}" y="{mt + ph + 16}" text-anchor="middle">{t:.3g}</text>')
@@ -355,16 +368,7 @@ def svg_log_boxplot(
     vals = [[np.array([v for v in g if v is not None and math.isfinite(v)], dtype=np.float64) for g in s]
             for _, s in series]
     allv = np.concatenate([v for s in vals for v in s] + [np.zeros(0)])
-    pos = allv[allv > 0]
-    if len(pos) == 0:
-        pos = np.array([1e-3, 1.0])
-    lo_dec, hi_dec = math.floor(math.log10(pos.min())), math.ceil(math.log10(pos.max()))
-    has_zero = bool(np.any(allv <= 0))
-    if has_zero:
-        lo_dec -= 1
-    if hi_dec <= lo_dec:
-        hi_dec = lo_dec + 1
-    floor = 10.0 ** lo_dec
+    axis = _LogAxis(allv[allv > 0], bool(np.any(allv <= 0)))
     ns = max(1, len(series))
     box_w = 18
     ml, mr, mt, mb = 64, 150, 28, 48
@@ -376,22 +380,9 @@ def svg_log_boxplot(
     ph = height - mt - mb
 
     def py(v: float) -> float:
-        v = max(v, floor) if math.isfinite(v) else floor
-        return mt + (hi_dec - math.log10(v)) / (hi_dec - lo_dec) * ph
+        return axis.y(v, mt, ph)
 
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
-           'font-family="sans-serif" font-size="11">',
-           f'<text x="{ml}" y="16" font-size="13" font-weight="bold">{html.escape(title)}</text>',
-           f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>']
-    for d in range(lo_dec, hi_dec + 1):
-        y = py(10.0 ** d)
-        out.append(f'<line x1="{ml}" x2="{ml + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd"/>')
-        le = "≤" if has_zero and d == lo_dec else ""
-        out.append(f'<text x="{ml - 6}" y="{y + 4:.1f}" text-anchor="end">{le}1e{d}</text>')
-        for m in range(2, 10):
-            if d < hi_dec:
-                ym = py(m * 10.0 ** d)
-                out.append(f'<line x1="{ml}" x2="{ml + 4}" y1="{ym:.1f}" y2="{ym:.1f}" stroke="#999"/>')
+    out = axis.frame(width, height, ml, mt, pw, ph, title)
     out.append(f'<text x="14" y="{mt + ph / 2}" text-anchor="middle" transform="rotate(-90 14 {mt + ph / 2})">'
                f'{html.escape(ylabel)} (log scale)</text>')
     for gi, gname in enumerate(groups):
