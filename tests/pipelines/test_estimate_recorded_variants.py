@@ -44,8 +44,10 @@ IMAGE_TOPICS = ("/cameras/front/image", "/cameras/side/image", "/tactile/left/im
 # the object with the end effector at the frame's stamp for every sensor, so an image taken a
 # few ms off that time sees the object moved by the end effector's motion in between (up to
 # 0.6 mm in the approach of a 20-frame episode), and the frames with tactile images only (the
-# cameras at half rate) pull the belief off by up to a few degrees. With the end effector
-# looked up at each image's stamp the same log gives 0.60 mm, 0.45 deg.
+# cameras at half rate), their weights rescaled to the full eq. 2 share, pull the rotation
+# off. With the end effector looked up at each image's stamp the same log gives 0.60 mm,
+# 0.45 deg; with tactile-only frames also kept at the tactile share of a full frame, 0.30 mm,
+# 0.47 deg.
 ESTIMATOR_LIMITS = {
     "rates_drops_jitter": "pipelines/estimate.py uses T_world_ee at the frame's stamp for sensors stamped "
                           "at other times; tactile-only frames degrade the rotation",
