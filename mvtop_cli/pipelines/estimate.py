@@ -300,13 +300,7 @@ class Estimator:
             T = se3.invert(img.T_world_sensor) @ cand
             rendered[name] = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders[name])
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
-            H, W = img.image.shape[:2]
-            inside_w = min(box[2], W) - max(box[0], 0)
-            inside_h = min(box[3], H) - max(box[1], 0)
-            # a belief at the image edge leaves (almost) no pixels to segment: no proposals,
-            # the belief-prompted proposal and the other sensors carry the frame
-            props = ([roi.crop(p) for p in self.observer.camera_proposals(img, box)]
-                     if inside_w >= 2 and inside_h >= 2 else [])
+            props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
             prob = belief_probability(rendered[name], w[idx])
             belief = grabcut_from_belief(roi_image(img.image, roi), prob, seed=self.cfg.filter.seed)
             proposals[name] = ([belief] if belief is not None else []) + props

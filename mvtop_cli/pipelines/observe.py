@@ -58,7 +58,12 @@ class Observer:
             self._reference_file = (base / ref) if not Path(ref).is_absolute() else Path(ref)
 
     def camera_proposals(self, img: SensorImage, roi_box: tuple[int, int, int, int]) -> list[np.ndarray]:
-        """Zero-shot proposals (full-image bool masks) inside ``roi_box``."""
+        """Zero-shot proposals (full-image bool masks) inside ``roi_box``; none when the box
+        leaves under 2 x 2 pixels of the image (a belief at the image edge: the other
+        proposals and sensors carry the frame)."""
+        H, W = img.image.shape[:2]
+        if min(roi_box[2], W) - max(roi_box[0], 0) < 2 or min(roi_box[3], H) - max(roi_box[1], 0) < 2:
+            return []
         return list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box)))
 
     def camera_prompt(self, img: SensorImage, prompt_mask: np.ndarray) -> np.ndarray:
