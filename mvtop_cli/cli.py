@@ -49,13 +49,13 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     folder). With --config, check that every topic and TF frame the config needs is present."""
     from .pipelines.inspect import format_report, inspect_log
 
-    required_topics = required_frames = None
+    required_topics = required_frames = urdf = None
     if config_path is not None:
         from .config import load_config
 
         cfg = load_config(config_path)
-        required_topics, required_frames = cfg.required_topics(), cfg.required_frames()
-    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames)
+        required_topics, required_frames, urdf = cfg.required_topics(), cfg.required_frames(), cfg.robot.urdf
+    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames, urdf=urdf)
     click.echo(format_report(report))
     problems = []
     if report.missing_topics:

@@ -214,8 +214,11 @@ class Config:
     source: Path | None = field(default=None, metadata={"internal": True})
 
     def required_topics(self) -> dict[str, str]:
-        """Topics this config reads, mapped to the ROS 2 type each must have."""
-        req = {self.topics.tf: "tf2_msgs/msg/TFMessage", self.topics.tf_static: "tf2_msgs/msg/TFMessage"}
+        """Topics this config reads, mapped to the ROS 2 type each must have. With a URDF the
+        moving frames come from the joint states, so /tf is read when present but not required."""
+        req = {self.topics.tf_static: "tf2_msgs/msg/TFMessage"}
+        if self.robot.urdf is None:
+            req = {self.topics.tf: "tf2_msgs/msg/TFMessage", **req}
         for cam in self.sensors.cameras:
             req[cam.image_topic] = _image_type(cam.image_topic)
             req[cam.info_topic] = "sensor_msgs/msg/CameraInfo"

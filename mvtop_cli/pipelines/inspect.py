@@ -10,6 +10,7 @@ import numpy as np
 
 from ..io import ros2_msgs as rm
 from ..io.mcap_reader import LogSummary, McapLog
+from ..io.urdf import UrdfKinematics
 
 
 @dataclass(frozen=True)
@@ -18,8 +19,9 @@ class InspectReport:
 
     ``wrong_types`` holds ``(topic, expected, actual)``; ``empty_topics`` required topics
     that exist but carry no message; ``tf_frames`` every frame named on a TFMessage
-    topic (None when TF was not scanned); ``missing_frames`` required frames not among
-    them.
+    topic (None when TF was not scanned); ``urdf_frames`` the links of the config's URDF
+    (put into TF from the joint states when estimating); ``missing_frames`` required
+    frames in neither.
     """
 
     summary: LogSummary
@@ -31,6 +33,7 @@ class InspectReport:
     required_frames: tuple[str, ...]
     missing_frames: tuple[str, ...]
     timing: dict[str, dict] = field(default_factory=dict)
+    urdf_frames: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -63,6 +66,7 @@ def inspect_log(
     required_frames: list[str] | None = None,
     *,
     scan_tf: bool | None = None,
+    urdf: str | Path | None = None,
 ) -> InspectReport:
     """Summarise the log at ``path`` (an .mcap file or a rosbag2 folder) and check it against
     ``required_topics`` (topic -> ``pkg/msg/Name``) and ``required_frames`` (TF frame names).
@@ -70,8 +74,13 @@ def inspect_log(
     TF frames are collected (which reads every TF message) when ``scan_tf`` is True, or
     by default when ``required_frames`` is given. An interrupted recording (no footer)
     is read up to its last complete record and flagged rather than rejected; other
-    unreadable logs raise LogError.
+    unreadable logs raise LogError. With ``urdf`` (a robot model whose links come from
+    the joint states), its links count as present frames.
     """
+    urdf_frames: tuple[str, ...] = ()
+    if urdf is not None:
+        kin = UrdfKinematics(urdf)
+        urdf_frames = tuple(sorted({kin.root, *kin.links}))
     required_topics = dict(required_topics or {})
     required_frames = list(required_frames or [])
     with McapLog(path, allow_truncated=True) as log:
@@ -94,7 +103,8 @@ def inspect_log(
             and not any(t == w[0] for w in wrong)
         ]
         timing = _image_timing(log, image_topics) if image_topics else {}
-    missing_frames = tuple(f for f in required_frames if frames is None or f.lstrip("/") not in frames)
+    known = set(frames or ()) | set(urdf_frames)
+    missing_frames = tuple(f for f in required_frames if (frames is None and not urdf_frames) or f.lstrip("/") not in known)
     return InspectReport(
         summary=summary,
         required_topics=required_topics,
@@ -105,6 +115,7 @@ def inspect_log(
         required_frames=tuple(required_frames),
         missing_frames=missing_frames,
         timing=timing,
+        urdf_frames=urdf_frames,
     )
 
 
@@ -193,6 +204,8 @@ def format_report(report: InspectReport) -> str:
     lines += _table(["topic", "type", "count", "rate Hz", "span s", "check"], rows, right={2, 3, 4})
     if report.tf_frames is not None:
         lines += ["", f"TF frames:   {', '.join(report.tf_frames) or '(none)'}"]
+    if report.urdf_frames:
+        lines += [f"URDF links:  {', '.join(report.urdf_frames)} (from the joint states)"]
     if report.timing:
         rows = []
         for topic, v in report.timing.items():

@@ -186,6 +186,18 @@ def test_cli_simulate_writes_a_joint_states_log_with_its_urdf(tmp_path):
     frames, skipped = _frames(tmp_path / "c.mcap", tmp_path / "c.yaml")
     assert [sorted(f.cameras) for f in frames] == [["front", "side"], [], ["front", "side"], []]
     assert all(sorted(f.tactile) == ["left", "right"] for f in frames) and not skipped
+    # inspect counts the URDF's links as frames and does not ask for /tf (the log has none)
+    res = CliRunner().invoke(cli, ["inspect", str(tmp_path / "c.mcap"), "--config", str(tmp_path / "c.yaml")])
+    assert res.exit_code == 0, res.output
+    assert "OK: every required topic and TF frame is present." in res.output
+    assert "URDF links:" in res.output and "tactile_left_optical" in res.output
+    assert not any(line.startswith("/tf ") for line in res.output.splitlines())
+    # a frame neither in TF nor in the URDF is still reported
+    text = (tmp_path / "c.yaml").read_text()
+    assert "\nframes:" not in text
+    (tmp_path / "d.yaml").write_text(text + "frames: {world: world, ee: tool_tip}\n")
+    res = CliRunner().invoke(cli, ["inspect", str(tmp_path / "c.mcap"), "--config", str(tmp_path / "d.yaml")])
+    assert res.exit_code != 0 and "missing TF frames: tool_tip" in res.output, res.output
     help_text = CliRunner().invoke(cli, ["simulate", "--help"]).output
     for option in ("--image-format", "--distortion", "--kinematics", "--camera-every", "--drop-fraction",
                    "--stamp-jitter-ms"):
