@@ -20,7 +20,11 @@ class SensorImage:
     ``image`` is (H, W, 3) uint8 RGB (mono images are expanded to three channels);
     ``T_world_sensor`` is the sensor's optical frame (z forward) in ``world`` at
     ``stamp_ns``; ``depth`` is, for tactile sensors that publish it, the gel
-    indentation (H, W) float32 [m] (0 where undeformed).
+    indentation (H, W) float32 [m] (0 where undeformed). ``T_world_ee`` is the end
+    effector in ``world`` at this image's own ``stamp_ns`` (sensors at different rates
+    take their images at other times than the frame's stamp; the held object moves
+    with the end effector, so it is placed in each image with this pose); None means
+    "at the frame's stamp".
     """
 
     sensor: str
@@ -29,6 +33,7 @@ class SensorImage:
     camera: PinholeCamera
     T_world_sensor: np.ndarray
     depth: np.ndarray | None = None
+    T_world_ee: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,13 @@ keeps its meaning whatever the number of sensors. Default weights follow the pap
 ``N_V`` counting the sensors present in the frame; given weights keep their ratios. A
 frame without any sensor carries no information: every particle gets ``-log N``.
 
+With ``renormalise=False`` the given weights are used as they are, absent sensors simply
+dropped: each sensor then contributes the same ``gamma_i IoU_i / tau`` to the
+log-likelihood whichever other sensors are present, as independent sensors' log-likelihoods
+add. The estimator scores this way, so a frame that holds only tactile images (sensors at
+different rates) counts as the tactile part of a full frame rather than as a whole frame
+of evidence about what touch alone cannot see.
+
 A NaN for only some particles in a column (IoU undefined for those renders) scores that
 term as 0, the worst possible IoU, so such particles are never favoured.
 """
@@ -56,19 +63,23 @@ def sensor_weights(
     present_vision: np.ndarray,
     gamma: np.ndarray | None = None,
     nu: np.ndarray | None = None,
+    renormalise: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Importance weights ``(gamma (N_T,), nu (N_V,))`` actually used in eq. 2 for one frame.
 
     present_tactile, present_vision : (N_T,) / (N_V,) bool
       Which sensors have an observation in this frame.
     Absent sensors get 0; the others keep the given ratios (defaults 1/N_T and 1/N_V over
-    the present sensors) and are rescaled to sum to one together. All zeros when no
-    present sensor has a positive weight.
+    the present sensors) and, with ``renormalise``, are rescaled to sum to one together
+    (without it, given weights are kept as they are). All zeros when no present sensor has
+    a positive weight.
     """
     pt = np.asarray(present_tactile, dtype=bool)
     pv = np.asarray(present_vision, dtype=bool)
     g = _importance(gamma, pt, "gamma")
     v = _importance(nu, pv, "nu")
+    if not renormalise:
+        return g, v
     total = g.sum() + v.sum()
     if total <= 0:
         return np.zeros_like(g), np.zeros_like(v)
@@ -80,9 +91,11 @@ def visuo_tactile_score(
     iou_vision: np.ndarray | None,
     gamma: np.ndarray | None = None,
     nu: np.ndarray | None = None,
+    renormalise: bool = True,
 ) -> np.ndarray:
     """The matching score ``s~_n`` of eq. 2 for every particle, (N,) in [0, 1]: the
-    importance-weighted sum of the IoUs (arguments as for ``visuo_tactile_log_score``).
+    importance-weighted sum of the IoUs (arguments as for ``visuo_tactile_log_score``;
+    ``renormalise`` as for ``sensor_weights``).
 
     Unlike eq. 1's softmax, ``s~ / tau`` does not depend on which other particles are
     scored with it, so it is the log-likelihood to use when poses scored in different
@@ -100,7 +113,7 @@ def visuo_tactile_score(
     if vis is None:
         vis = np.zeros((n, 0))
     g, v = sensor_weights(
-        ~np.all(np.isnan(tac), axis=0), ~np.all(np.isnan(vis), axis=0), gamma, nu
+        ~np.all(np.isnan(tac), axis=0), ~np.all(np.isnan(vis), axis=0), gamma, nu, renormalise
     )
     # eq. 2; isolated NaNs (and absent sensors, whose weight is 0) contribute nothing.
     return np.nan_to_num(tac, nan=0.0) @ g + np.nan_to_num(vis, nan=0.0) @ v

@@ -551,6 +551,9 @@ class FrameReader:
             if not slo <= st <= shi:
                 self.skipped.append((st, f"{s.name}: no TF for {t.world_frame} -> {frame_id} at this time"))
                 continue
+            if not lo <= st <= hi:
+                self.skipped.append((st, f"{s.name}: no TF for {t.world_frame} -> {t.ee_frame} at this time"))
+                continue
             depth = None
             dslot = g.slots.get((s.name, "depth"))
             camera = self._camera_at(s.name, st)
@@ -570,6 +573,7 @@ class FrameReader:
                 camera=camera,
                 T_world_sensor=self.tf.lookup(t.world_frame, frame_id, st),
                 depth=depth,
+                T_world_ee=T_world_ee if st == stamp else self.tf.lookup(t.world_frame, t.ee_frame, st),
             )
             (cameras if s.modality == "camera" else tactile)[s.name] = img
         if not cameras and not tactile:

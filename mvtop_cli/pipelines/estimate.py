@@ -159,6 +159,9 @@ class Estimator:
         self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
         self.camera_weights = {c.name: c.weight for c in cfg.sensors.cameras}
         self.use_contact = "contact" in cfg.modalities
+        # cameras and tactile sensors both enabled: eq. 2's weights split between them
+        self.fuses_both = ("vision" in cfg.modalities and bool(cfg.sensors.cameras)
+                           and "tactile" in cfg.modalities and bool(cfg.sensors.tactile))
 
     def _init_particles(self) -> ParticleSet:
         g = self.cfg.grasp_prior
@@ -281,23 +284,22 @@ class Estimator:
         the belief has converged (the paper's promptable mode)."""
         ps = self.particles
         cams = frame.cameras
-        T_world_obj = frame.T_world_ee @ ps.poses
         if converged:
-            est = frame.T_world_ee @ ps.mean()
+            est = ps.mean()
             out = {}
             for name, img in cams.items():
-                T = se3.invert(img.T_world_sensor) @ est
+                T = se3.invert(img.T_world_sensor) @ (_ee_at(img, frame) @ est)
                 full = Roi.full(img.camera)
                 prompt = self.scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, full, occluders[name])[0]
                 out[name] = rois[name].crop(self.observer.camera_prompt(img, prompt)) if prompt.any() else None
             return out, "prompt"
         w = ps.weights()
         idx = np.argsort(-w, kind="stable")[:_CANDIDATES]
-        cand = T_world_obj[idx]
+        cand = ps.poses[idx]
         proposals, rendered = {}, {}
         for name, img in cams.items():
             roi = rois[name]
-            T = se3.invert(img.T_world_sensor) @ cand
+            T = se3.invert(img.T_world_sensor) @ (_ee_at(img, frame) @ cand)
             rendered[name] = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders[name])
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
             props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
@@ -340,10 +342,9 @@ class Estimator:
 
         # ROIs and occluders from the predicted belief (fixed for the frame).
         occluders, rois, observed, cams = {}, {}, {}, {}
-        T_world_obj = T_world_ee @ ps.poses
         for name, img in {**frame.cameras, **frame.tactile}.items():
             tactile = name in frame.tactile
-            T = se3.invert(img.T_world_sensor) @ T_world_obj
+            T = se3.invert(img.T_world_sensor) @ (_ee_at(img, frame) @ ps.poses)
             mode = "tactile" if tactile else "silhouette"
             gel = self.tactile_cfg[name].gel_distance_m if tactile else None
             rois[name] = roi_for_particles(self.scene.renderer.mesh(OBJECT_ID), T, img.camera, mode, gel, max_side=f.roi_size_px)
@@ -362,17 +363,19 @@ class Estimator:
 
         tac_names = [n for n in frame.tactile if n in crops]
         cam_names = [n for n in frame.cameras if n in crops]
-        t_share = _TACTILE_SHARE if (tac_names and cam_names) else 1.0
+        # each modality keeps its share of eq. 2 on frames where the other one has no image
+        # (sensors at different rates): rescaling touch to the whole score on tactile-only
+        # frames let the pads pull the rotations they cannot place
+        t_share, v_share = (_TACTILE_SHARE, 1.0 - _TACTILE_SHARE) if self.fuses_both else (1.0, 1.0)
         base_gamma = np.array([self.tactile_cfg[n].weight or t_share / len(tac_names) for n in tac_names])
-        base_nu = np.array([self.camera_weights[n] or (1.0 - t_share if tac_names else 1.0) / len(cam_names) for n in cam_names])
+        base_nu = np.array([self.camera_weights[n] or v_share / len(cam_names) for n in cam_names])
 
         def ious(T_ee_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            T_w = T_world_ee @ T_ee_obj
             iou_t = np.empty((len(T_ee_obj), len(tac_names)))
             iou_v = np.empty((len(T_ee_obj), len(cam_names)))
             for j, n in enumerate(tac_names):
                 img = frame.tactile[n]
-                T = se3.invert(img.T_world_sensor) @ T_w
+                T = se3.invert(img.T_world_sensor) @ (_ee_at(img, frame) @ T_ee_obj)
                 iou_t[:, j] = self.scene.renderer.score_masks(
                     OBJECT_ID, T, img.camera, rois[n], crops[n], mode="tactile",
                     gel_distance_m=self.tactile_cfg[n].gel_distance_m,
@@ -380,7 +383,7 @@ class Estimator:
                 )
             for j, n in enumerate(cam_names):
                 img = frame.cameras[n]
-                T = se3.invert(img.T_world_sensor) @ T_w
+                T = se3.invert(img.T_world_sensor) @ (_ee_at(img, frame) @ T_ee_obj)
                 iou_v[:, j] = self.scene.renderer.score_masks(
                     OBJECT_ID, T, img.camera, rois[n], crops[n], occluders[n], observed_outside=outside[n]
                 )
@@ -394,7 +397,10 @@ class Estimator:
                 # eq. 1-2 without the softmax's normalisation over the batch (a constant for
                 # one batch, but poses scored in different calls are compared: Metropolis
                 # ratios, search elites), so log-likelihoods of different calls agree.
-                score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None) / f.temperature
+                # the weights are each present sensor's share of a full frame (base_gamma, base_nu):
+                # kept as they are, not rescaled to the sensors of this frame
+                score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None, nu if len(nu) else None,
+                                            renormalise=False) / f.temperature
                 if contact and self.scene.has_contact_model:
                     phi = self.scene.phi(T_world_ee @ T_ee_obj)
                     score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
@@ -485,6 +491,12 @@ class Estimator:
         iou = {n: float(v) for n, v in zip(names, values)}
         informative = {n: bool(crops[n].any() or outside[n] > 0 or iou[n] < 1.0) for n in names}
         return iou, informative
+
+
+def _ee_at(img: SensorImage, frame: Frame) -> np.ndarray:
+    """The end effector in ``world`` at the time ``img`` was taken (4, 4): the held
+    object is placed in each image with the gripper pose of that image's own stamp."""
+    return frame.T_world_ee if img.T_world_ee is None else img.T_world_ee
 
 
 def _with_counts(diagnostics: dict, scored: dict) -> dict:

@@ -65,6 +65,25 @@ def test_missing_sensor_is_dropped_and_weights_renormalised():
     np.testing.assert_allclose(np.exp(out), _direct(np.zeros((8, 0)), iou_v, np.zeros(0), np.full(2, 0.5), 0.02))
 
 
+def test_without_renormalising_each_sensor_keeps_its_share():
+    """renormalise=False (the estimator's scoring): a sensor contributes gamma_i IoU_i
+    whichever others are present, so a frame of tactile images alone scores like the
+    tactile part of a full frame."""
+    rng = np.random.default_rng(3)
+    iou_t, iou_v = rng.random((8, 2)), rng.random((8, 2))
+    gamma, nu = np.array([0.25, 0.25]), np.array([0.25, 0.25])
+    full = visuo_tactile_score(iou_t, iou_v, gamma, nu, renormalise=False)
+    np.testing.assert_allclose(full, iou_t @ gamma + iou_v @ nu, rtol=1e-12)
+    np.testing.assert_allclose(full, visuo_tactile_score(iou_t, iou_v, gamma, nu), rtol=1e-12)  # sums to 1 already
+    touch_only = visuo_tactile_score(iou_t, np.full((8, 2), np.nan), gamma, nu, renormalise=False)
+    np.testing.assert_allclose(touch_only, iou_t @ gamma, rtol=1e-12)
+    # renormalised, the same frame would count touch twice as much
+    np.testing.assert_allclose(visuo_tactile_score(iou_t, np.full((8, 2), np.nan), gamma, nu), 2 * iou_t @ gamma, rtol=1e-12)
+    g, v = sensor_weights([True, False], [True, True], gamma, nu, renormalise=False)
+    np.testing.assert_allclose(g, [0.25, 0.0])
+    np.testing.assert_allclose(v, [0.25, 0.25])
+
+
 def test_frame_without_sensors_is_uninformative_and_partial_nan_scores_zero():
     iou = np.full((4, 2), np.nan)
     np.testing.assert_allclose(visuo_tactile_log_score(iou, None, None, None, 0.01), -np.log(4))

@@ -60,6 +60,10 @@ def test_frames_match_the_known_scene(tmp_path, compression):
         for name, img in {**f.cameras, **f.tactile}.items():
             st = trigger(k) + OFFSETS[name]
             assert img.stamp_ns == st
+            # the end effector at the image's own time (the sensors are 1-3 ms apart)
+            np.testing.assert_allclose(img.T_world_ee, sc.T_world_ee(st), atol=1e-12)
+            if st != f.stamp_ns:
+                assert not np.allclose(img.T_world_ee, f.T_world_ee, atol=1e-9)
             shape = (CAMERA.height, CAMERA.width) if name in ("front", "side") else (TACTILE.height, TACTILE.width)
             expected = image_of(name, k, shape)  # raw and png are lossless
             if name in ("left", "right"):  # the tactile camera has lens distortion: undistorted
