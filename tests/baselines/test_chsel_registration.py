@@ -51,3 +51,30 @@ def test_no_surface_points_is_one_clear_error():
     pts = LabelledPoints.of(np.zeros((5, 3)), FREE)
     with pytest.raises(chsel_runner.MvtopError, match="at least one surface point"):
         chsel_runner.register(pts, box.vertices, box.faces, np.eye(4)[None], seed=0)
+
+
+def test_no_tbb_warning_when_the_baseline_loads_its_libtbb_first():
+    """open3d (pulled in by the baseline) bundles a libtbb older than numba supports; loaded
+    before the first parallel kernel, numba used to warn about it on stderr in every
+    benchmark run with CHSEL."""
+    import subprocess
+    import sys
+
+    code = (
+        "import open3d\n"
+        "import numpy as np\n"
+        "from mvtop_cli.render.numba_renderer import NumbaMaskRenderer\n"
+        "import trimesh\n"
+        "from mvtop_cli.geometry.camera import PinholeCamera\n"
+        "from mvtop_cli.render.roi import Roi\n"
+        "r = NumbaMaskRenderer()\n"
+        "box = trimesh.creation.box(extents=(0.02, 0.02, 0.02))\n"
+        "r.add_mesh('box', box.vertices, box.faces)\n"
+        "cam = PinholeCamera(64, 48, np.array([[60.0, 0, 32], [0, 60.0, 24], [0, 0, 1]]))\n"
+        "T = np.eye(4); T[2, 3] = 0.2\n"
+        "print(int(r.render_masks('box', T[None], cam, Roi.full(cam), [])[0].sum()))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert int(proc.stdout) > 0
+    assert "TBB" not in proc.stderr, proc.stderr
