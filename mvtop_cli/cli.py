@@ -6,6 +6,7 @@ import contextlib
 import shlex
 import signal
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -75,16 +76,37 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
 
 @contextlib.contextmanager
 def _progress(label: str, resumable: bool = False):
-    """A progress bar on stderr (hidden when stderr is not a terminal); yields ``update(done, total)``.
+    """Progress on stderr; yields ``update(done, total)``. On a terminal, a progress bar; else
+    (a log file, a CI job) a plain line at most every ``_PLAIN_PROGRESS_INTERVAL_S`` seconds, and
+    one when work that took longer than that is complete, with the time elapsed and an estimate
+    of the time left.
 
     With ``resumable``, a first update that already reports work done (a resumed run) makes
-    the bar count from there: it shows ``done/total`` and an ETA from the remaining work only."""
+    the bar count from there: it shows ``done/total`` and an ETA from the remaining work only
+    (the plain lines always estimate from the work done in this run)."""
     bar = None
     start = 0
+    plain = {"t0": None, "first": 0, "last": 0.0}
+
+    def plain_line(done: int, total: int) -> None:
+        now = time.monotonic()
+        if plain["t0"] is None:
+            plain["t0"], plain["first"], plain["last"] = now, done, now
+            return
+        finished_long = done >= total and now - plain["t0"] >= _PLAIN_PROGRESS_INTERVAL_S
+        if now - plain["last"] < _PLAIN_PROGRESS_INTERVAL_S and not finished_long:
+            return  # short jobs print no progress at all, long ones a line a minute and the last
+        plain["last"] = now
+        elapsed = now - plain["t0"]
+        rate = (done - plain["first"]) / elapsed if elapsed > 0 else 0.0
+        left = "" if done >= total or rate <= 0 else f", about {_duration((total - done) / rate)} left"
+        pct = 100.0 * done / max(total, 1)
+        click.echo(f"{label}: {done}/{total} ({pct:.0f} %), {_duration(elapsed)} elapsed{left}", err=True)
 
     def update(done: int, total: int) -> None:
         nonlocal bar, start
         if not sys.stderr.isatty():
+            plain_line(done, total)
             return
         if bar is None:
             start = done if resumable else 0
@@ -102,6 +124,21 @@ def _progress(label: str, resumable: bool = False):
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
+
+
+# Seconds between two plain progress lines when stderr is not a terminal: often enough to
+# show that a long job (a benchmark of hours) is alive, rarely enough to keep logs short.
+_PLAIN_PROGRESS_INTERVAL_S = 60.0
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``7 min 5 s`` or ``3 h 12 min``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {s % 3600 // 60} min"
 
 
 @contextlib.contextmanager

@@ -144,6 +144,8 @@ def test_estimate_writes_the_track_folder(tmp_path):
                "--max-frames", "3", "--modalities", "vision,tactile")
     assert proc.returncode == 0, proc.stderr
     assert "3 frames" in proc.stdout and "error vs ground truth" in proc.stdout
+    # a clean run says nothing on stderr: no library warnings (numba's about an old TBB)
+    assert proc.stderr == "", proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["config.resolved.yaml", "summary.json", "track.csv", "track.mcap"]
     resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
     assert resolved["modalities"] == ["vision", "tactile"] and resolved["filter"]["num_particles"] == 100
@@ -162,3 +164,34 @@ def test_estimate_rejects_unknown_modality(tmp_path):
     line = one_error_line(run("estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(tmp_path / "o"),
                               "--modalities", "vision,smell"))
     assert "--modalities" in line and "smell" in line
+
+
+def test_progress_without_a_terminal_prints_plain_lines_with_time_left(monkeypatch, capsys):
+    """A long job run into a log file (no terminal) says how far it is and how long is left."""
+    from mvtop_cli import cli as cli_module
+
+    clock = iter([0.0, 30.0, 61.0, 90.0, 200.0])
+    monkeypatch.setattr(cli_module.time, "monotonic", lambda: next(clock))
+    with cli_module._progress("benchmark accuracy") as update:
+        update(0, 10)  # t = 0: the start
+        update(1, 10)  # t = 30: within the minute, nothing printed
+        update(2, 10)  # t = 61: 2 runs in 61 s, 8 to go at that rate
+        update(3, 10)  # t = 90: within a minute of the last line
+        update(10, 10)  # t = 200: complete
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        "benchmark accuracy: 2/10 (20 %), 1 min 1 s elapsed, about 4 min 4 s left",
+        "benchmark accuracy: 10/10 (100 %), 3 min 20 s elapsed",
+    ]
+
+
+def test_progress_of_a_short_job_without_a_terminal_prints_nothing(monkeypatch, capsys):
+    from mvtop_cli import cli as cli_module
+
+    clock = iter([0.0, 5.0, 12.0])
+    monkeypatch.setattr(cli_module.time, "monotonic", lambda: next(clock))
+    with cli_module._progress("estimate cube.mcap", resumable=True) as update:
+        update(0, 30)
+        update(15, 30)
+        update(30, 30)
+    assert capsys.readouterr().err == ""
