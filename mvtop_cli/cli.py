@@ -539,12 +539,16 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
 @click.option("--particles", type=click.IntRange(10, 1_000_000), help="Particles (default: the config's).")
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
+@click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="results.jsonl.gz of another benchmark folder: its runs count as done here (continue a "
+                   "benchmark on another machine).")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, methods: str, frames: int,
-                           particles: int | None, workers: int) -> None:
+                           particles: int | None, workers: int, import_results: Path | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
-    log-scale box plots of the errors per object and method in OUT/summary.html."""
+    log-scale box plots of the errors per object and method in OUT/summary.html. OUT/results.jsonl.gz
+    keeps every finished run in compact form, for --import-results elsewhere."""
     from .pipelines.benchmark_accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
     from .sim.objects import get_object, list_objects
 
@@ -555,7 +559,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
-    options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers)
+    options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
+                              import_results=import_results)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))

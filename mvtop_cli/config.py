@@ -92,7 +92,7 @@ class CameraSensor:
     image_topic: str
     info_topic: str
     frame: str | None = None
-    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0))
+    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ class TactileSensor:
     depth_topic: str | None = None
     frame: str | None = None
     gel_distance_m: float = field(default=0.025, metadata=_rng(0.0, 0.2, lo_open=True))
-    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0))
+    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
 
 
 @dataclass(frozen=True)
@@ -418,6 +418,9 @@ def _check_semantics(cfg: Config) -> None:
         raise _Invalid("sensors", f"sensor names must be unique, {dup[0]!r} is used twice")
     if not names:
         raise _Invalid("sensors", "expected at least one camera or tactile sensor")
+    if all(s.weight == 0.0 for s in (*cfg.sensors.cameras, *cfg.sensors.tactile)):
+        raise _Invalid("sensors", "every sensor has weight 0, so no image would score a pose "
+                                  "(leave 'weight' out for the default share)")
     if len(set(cfg.modalities)) != len(cfg.modalities):
         raise _Invalid("modalities", "a modality is listed twice")
     if not cfg.modalities:

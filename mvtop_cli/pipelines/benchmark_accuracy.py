@@ -9,10 +9,18 @@ and the insertion success rate, success meaning the final error is within the re
 clearance (table I). Runs are independent processes; each run's report is kept under
 ``OUT/runs/``, so an interrupted benchmark resumes where it stopped. ``summary.html`` shows
 the errors as log-scale box plots per object and method, like the paper's figure 4.
+
+``OUT/results.jsonl.gz`` holds every finished run in compact form (what the tables need, one
+JSON line per run, tagged with a fingerprint of the code that made it); given to another
+benchmark folder with ``import_results`` it counts those runs as done, which carries a long
+benchmark across machines. ``OUT/invocations.jsonl`` records each invocation's wall time.
 """
 
 from __future__ import annotations
 
+import functools
+import gzip
+import hashlib
 import html
 import json
 import os
@@ -54,6 +62,24 @@ class AccuracyOptions:
     particles: int | None = None
     workers: int = 1
     first_seed: int = 1000
+    import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
+
+
+RESULTS_FILE = "results.jsonl.gz"
+INVOCATIONS_FILE = "invocations.jsonl"
+# what a compact record keeps of a run's result.json: all the tables and plots use
+_RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "final", "benchmark")
+
+
+@functools.lru_cache(maxsize=4)
+def code_fingerprint(package: Path | None = None) -> str:
+    """SHA-256 (first 12 hex digits) over the package's Python sources, relative path and
+    bytes, in path order: runs made by the same code carry the same fingerprint."""
+    root = Path(package) if package is not None else Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int) -> dict:
@@ -70,8 +96,11 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     scene.mkdir(parents=True, exist_ok=True)
     log = scene / "log.mcap"
     cfg_path = scene / "config.yaml"
+    simulate_seconds = 0.0
     if not log.exists():
+        ts = time.perf_counter()
         simulate(obj, seed, log, SimulateOptions(episode=EpisodeOptions(frames=frames)))
+        simulate_seconds = time.perf_counter() - ts
     if not cfg_path.exists():
         write_scene_config(obj, cfg_path)
     cfg = load_config(cfg_path)
@@ -87,7 +116,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
         extra = {k: summary["baseline"][k] for k in ("points_seconds", "registration_seconds", "registration_cpu_seconds")}
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
-                           "cpu_seconds": time.process_time() - c0, **extra}
+                           "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
+                           "code": code_fingerprint(), **extra}
     with atomic_output(run / "result.json", "w") as fh:
         json.dump(report, fh)
     return report
@@ -118,6 +148,9 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                 jobs.append((obj, seed, method, run_dir))
     reports: dict[tuple, dict] = {}
     todo = []
+    imported = 0
+    if options.import_results is not None:
+        imported = _import_results(Path(options.import_results), jobs)
     for job in jobs:
         result = job[3] / "result.json"
         if result.is_file():
@@ -146,8 +179,11 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                 done += 1
                 if progress is not None:
                     progress(done, len(jobs))
+    seconds = time.perf_counter() - t0
+    _append_invocation(out_dir, options, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
-               "seconds_this_run": round(time.perf_counter() - t0, 1), "table": {}}
+               "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
+               "imported_this_run": imported, "totals": _totals(out_dir, reports), "table": {}}
     for method in options.methods:
         for obj in options.objects:
             rs = [r for (o, s, m), r in reports.items() if o == obj and m == method]
@@ -160,6 +196,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                                     "max": float(np.max(vals))}
                 summary["table"].setdefault(method, {})[obj] = agg
     summary["final_errors"] = final_errors(reports, options.objects, options.methods)
+    write_results(out_dir / RESULTS_FILE, reports)
     with atomic_output(out_dir / "summary.json", "w") as fh:
         json.dump(summary, fh, indent=2)
     with atomic_output(out_dir / "summary.md", "w") as fh:
@@ -167,6 +204,99 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     with atomic_output(out_dir / "summary.html", "w") as fh:
         fh.write(render_html(summary))
     return summary
+
+
+def compact_record(report: dict) -> dict:
+    """What the tables and plots need of one run's result.json (no per-frame rows)."""
+    return {k: report[k] for k in _RECORD_KEYS if k in report}
+
+
+def write_results(path: Path, reports: dict[tuple, dict]) -> None:
+    """``results.jsonl.gz``: one compact record per run, in (object, seed, method) order;
+    byte-identical for the same runs (no time stamp in the gzip header)."""
+    lines = [json.dumps(compact_record(reports[key]), sort_keys=True) for key in sorted(reports)]
+    data = ("\n".join(lines) + "\n").encode() if lines else b""
+    with atomic_output(path, "wb") as fh:
+        with gzip.GzipFile(fileobj=fh, mode="wb", mtime=0, filename="") as gz:
+            gz.write(data)
+
+
+def read_results(path: Path) -> list[dict]:
+    """The records of a ``results.jsonl.gz`` (or plain ``.jsonl``); a damaged file or record
+    is an error naming the file and line."""
+    try:
+        raw = path.read_bytes()
+        text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("utf-8")
+    except FileNotFoundError:
+        raise MvtopError(f"{path}: results file not found (expected an {RESULTS_FILE} of a benchmark folder)") from None
+    except (OSError, EOFError, UnicodeDecodeError) as e:
+        raise MvtopError(f"{path}: not a readable results file ({e})") from None
+    records = []
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError as e:
+            raise MvtopError(f"{path} line {n}: not JSON ({e.msg})") from None
+        b = rec.get("benchmark") if isinstance(rec, dict) else None
+        f = rec.get("final") if isinstance(rec, dict) else None
+        if (not isinstance(b, dict) or not isinstance(f, dict) or not all(k in b for k in ("object", "seed", "method"))
+                or "insertable" not in f or "translation_error_mm" not in f):
+            raise MvtopError(f"{path} line {n}: expected a benchmark record with benchmark.object/seed/method "
+                             "and final.insertable/translation_error_mm")
+        records.append(rec)
+    return records
+
+
+def _import_results(path: Path, jobs: list[tuple]) -> int:
+    """Write the records of ``path`` that match a job without a result yet as that job's
+    result.json; returns how many were imported."""
+    wanted = {(o, s, m): d for o, s, m, d in jobs}
+    count = 0
+    for rec in read_results(path):
+        b = rec["benchmark"]
+        run_dir = wanted.get((b["object"], b["seed"], b["method"]))
+        if run_dir is None or (run_dir / "result.json").is_file():
+            continue
+        run_dir.mkdir(parents=True, exist_ok=True)
+        with atomic_output(run_dir / "result.json", "w") as fh:
+            json.dump({**rec, "imported_from": str(path)}, fh)
+        count += 1
+    return count
+
+
+def _append_invocation(out_dir: Path, options: AccuracyOptions, ran: int, imported: int, seconds: float) -> None:
+    entry = {"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seconds": round(seconds, 1),
+             "runs_made": ran, "runs_imported": imported, "workers": options.workers,
+             "cpus": os.cpu_count(), "code": code_fingerprint()}
+    with (out_dir / INVOCATIONS_FILE).open("a") as fh:
+        fh.write(json.dumps(entry) + "\n")
+
+
+def _totals(out_dir: Path, reports: dict[tuple, dict]) -> dict:
+    """Time spent over the whole benchmark (all invocations of this folder) and which code
+    made its runs."""
+    invocations = []
+    path = out_dir / INVOCATIONS_FILE
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            try:
+                invocations.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue  # a line cut by a crash: its time is not counted
+    bench = [r.get("benchmark", {}) for r in reports.values()]
+    codes: dict[str, int] = {}
+    for b in bench:
+        codes[b.get("code", "unrecorded")] = codes.get(b.get("code", "unrecorded"), 0) + 1
+    return {
+        "invocations": len(invocations),
+        "wall_seconds_all_invocations": round(sum(float(i.get("seconds", 0.0)) for i in invocations), 1),
+        "run_seconds_sum": round(sum(float(b.get("seconds", 0.0)) for b in bench), 1),
+        "run_cpu_seconds_sum": round(sum(float(b.get("cpu_seconds", 0.0)) for b in bench), 1),
+        "simulate_seconds_sum": round(sum(float(b.get("simulate_seconds", 0.0)) for b in bench), 1),
+        "code_versions": dict(sorted(codes.items())),
+    }
 
 
 def final_errors(reports: dict[tuple, dict], objects, methods) -> dict:
@@ -235,10 +365,33 @@ def render_html(summary: dict) -> str:
     ])
 
 
+def _duration(seconds: float) -> str:
+    m = int(round(seconds / 60))
+    return f"{m // 60} h {m % 60:02d} min" if m >= 60 else f"{m} min"
+
+
+def _header_lines(summary: dict) -> list[str]:
+    """What the tables are over: runs done of those requested, the code that made them,
+    and the time spent (older summaries without these keys get no header)."""
+    t = summary.get("totals")
+    if t is None or "runs" not in summary:
+        return []
+    codes = ", ".join(f"{c} ({n} runs)" for c, n in t["code_versions"].items())
+    done = summary["runs"] == summary["runs_requested"]
+    lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
+             f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
+             f"{len(summary['methods'])} methods){'' if done else ': not complete'}; code {codes}.",
+             f"Time: {_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
+             f"folder; per run (estimate + eval) {_duration(t['run_seconds_sum'])} wall and "
+             f"{_duration(t['run_cpu_seconds_sum'])} CPU in sum, simulation {_duration(t['simulate_seconds_sum'])}.", ""]
+    return lines
+
+
 def format_table(summary: dict) -> str:
     """Markdown tables: median / p95 final errors (figure 4) and success rates (table I)."""
     objs = summary["objects"]
-    lines = ["## Final pose error, median / p95 (bounding-box error [mm]; rotation [deg])", "",
+    lines = [*_header_lines(summary),
+             "## Final pose error, median / p95 (bounding-box error [mm]; rotation [deg])", "",
              "| method | " + " | ".join(objs) + " |", "|---|" + "---|" * len(objs)]
     for method, per in summary["table"].items():
         cells = []

@@ -367,8 +367,8 @@ class Estimator:
         # (sensors at different rates): rescaling touch to the whole score on tactile-only
         # frames let the pads pull the rotations they cannot place
         t_share, v_share = (_TACTILE_SHARE, 1.0 - _TACTILE_SHARE) if self.fuses_both else (1.0, 1.0)
-        base_gamma = np.array([self.tactile_cfg[n].weight or t_share / len(tac_names) for n in tac_names])
-        base_nu = np.array([self.camera_weights[n] or v_share / len(cam_names) for n in cam_names])
+        base_gamma = eq2_weights([self.tactile_cfg[n].weight for n in tac_names], t_share)
+        base_nu = eq2_weights([self.camera_weights[n] for n in cam_names], v_share)
 
         def ious(T_ee_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             iou_t = np.empty((len(T_ee_obj), len(tac_names)))
@@ -428,6 +428,9 @@ class Estimator:
         # frame was no better on logs with one pad's image flipped: conn1 3.9 deg against 1.5
         # deg this way after 14 frames, conn2 2.5 against 3.7)
         sensor_iou, informative = self._agreement(result.estimate, ious, tac_names + cam_names, crops, outside)
+        # a sensor switched off (weight 0) neither votes in nor is judged by the watch
+        for n, w in zip(tac_names + cam_names, np.concatenate([base_gamma, base_nu])):
+            informative[n] = informative[n] and w > 0
         for name, iou, others in self.consistency.observe(sensor_iou, informative):
             what = "tactile sensor" if name in tac_names else "camera"
             warnings.append(warning(
@@ -491,6 +494,14 @@ class Estimator:
         iou = {n: float(v) for n, v in zip(names, values)}
         informative = {n: bool(crops[n].any() or outside[n] > 0 or iou[n] < 1.0) for n in names}
         return iou, informative
+
+
+def eq2_weights(configured: list[float | None], share: float) -> np.ndarray:
+    """Eq. 1-2 weights (n,) of one modality's sensors present in a frame: a sensor's
+    configured ``weight`` where set (0 switches the sensor off), else an equal part of the
+    modality's ``share`` (1/N_T or 1/N_V of it)."""
+    default = share / len(configured) if configured else 0.0
+    return np.array([default if w is None else float(w) for w in configured], dtype=float)
 
 
 def _ee_at(img: SensorImage, frame: Frame) -> np.ndarray:

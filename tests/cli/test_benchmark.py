@@ -66,3 +66,54 @@ def test_benchmark_accuracy_box_plots_one_box_per_object_and_method(tmp_path):
             assert int(n) == 2
             assert abs(float(median) - float(np.median(values))) < 1e-12
     assert "| method | conn2 | conn1 |" in proc.stdout and "Time per run" in proc.stdout
+
+
+def test_benchmark_accuracy_results_carry_over_to_another_folder(tmp_path):
+    """results.jsonl.gz of one folder, given to another with --import-results, counts as done
+    there: only the missing run is made, and the tables cover both."""
+    import gzip
+
+    small = ("--objects", "conn2", "--methods", "M-TOP", "--frames", "6", "--particles", "60")
+    a, b = tmp_path / "a", tmp_path / "b"
+    first = run("benchmark", "accuracy", "--out", str(a), "--poses", "1", *small)
+    assert first.returncode == 0, first.stderr
+    records = [json.loads(line) for line in gzip.decompress((a / "results.jsonl.gz").read_bytes()).splitlines()]
+    done = json.loads((a / "runs" / "conn2_1000_M-TOP" / "result.json").read_text())
+    assert len(records) == 1 and records[0]["final"] == done["final"] and "per_frame" not in records[0]
+    code = records[0]["benchmark"]["code"]
+    assert len(code) == 12 and records[0]["benchmark"]["simulate_seconds"] > 0
+
+    second = run("benchmark", "accuracy", "--out", str(b), "--poses", "2", *small,
+                 "--import-results", str(a / "results.jsonl.gz"))
+    assert second.returncode == 0, second.stderr
+    imported = json.loads((b / "runs" / "conn2_1000_M-TOP" / "result.json").read_text())
+    assert imported["final"] == done["final"] and imported["imported_from"] == str(a / "results.jsonl.gz")
+    assert not (b / "scenes" / "conn2_1000").exists()  # not simulated again
+    made = json.loads((b / "runs" / "conn2_1001_M-TOP" / "result.json").read_text())
+    summary = json.loads((b / "summary.json").read_text())
+    assert summary["runs"] == summary["runs_requested"] == 2 and summary["imported_this_run"] == 1
+    errors = sorted([done["final"]["pose_error_mm"], made["final"]["pose_error_mm"]])
+    assert abs(summary["table"]["M-TOP"]["conn2"]["pose_error_mm"]["median"] - sum(errors) / 2) < 1e-12
+    assert summary["totals"]["code_versions"] == {code: 2}
+    assert f"2 of 2 runs (2 grasps per object x 1 objects x 1 methods); code {code} (2 runs)." in second.stdout
+    # invocations are logged; the results file is the same bytes when nothing changed
+    packed = (b / "results.jsonl.gz").read_bytes()
+    again = run("benchmark", "accuracy", "--out", str(b), "--poses", "2", *small)
+    assert again.returncode == 0, again.stderr
+    assert (b / "results.jsonl.gz").read_bytes() == packed
+    lines = [json.loads(x) for x in (b / "invocations.jsonl").read_text().splitlines()]
+    assert [x["runs_made"] for x in lines] == [1, 0] and [x["runs_imported"] for x in lines] == [1, 0]
+    assert json.loads((b / "summary.json").read_text())["totals"]["invocations"] == 2
+
+
+def test_benchmark_accuracy_refuses_a_damaged_results_file(tmp_path):
+    import gzip
+
+    bad = tmp_path / "results.jsonl.gz"
+    bad.write_bytes(gzip.compress(b'{"benchmark": {"object": "conn2", "seed": 1000, "method": "M-TOP"}, '
+                                  b'"final": {"insertable": true, "translation_error_mm": 0.1}}\n{"final": 3}\n'))
+    proc = run("benchmark", "accuracy", "--out", str(tmp_path / "b"), "--objects", "conn2", "--poses", "1",
+               "--methods", "M-TOP", "--import-results", str(bad))
+    assert proc.returncode != 0
+    assert f"{bad} line 2: expected a benchmark record" in proc.stderr
+    assert not list((tmp_path / "b").glob("runs/*/result.json"))

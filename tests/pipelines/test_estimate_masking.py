@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mvtop_cli.config import load_config
 from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
@@ -61,3 +62,55 @@ def test_frames_with_a_missing_sensor_still_update(tmp_path):
     assert sensors[1] == sensors[2] == sensors[3] == {"front", "left", "right"}
     assert sensors[4] == {"front", "side", "right"}
     assert all(np.isfinite(r.T_world_object).all() for r in results)
+
+
+def _first_frame_estimator(cfg):
+    from mvtop_cli.io.frames import FrameReader
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.pipelines.estimate import Estimator, log_topics, sensor_topics
+    from mvtop_cli.pipelines.scene_model import SceneModel
+
+    with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        est = Estimator(cfg, SceneModel(cfg), lambda f, t: reader.tf.lookup("world", f, t))
+        result = est.step(next(iter(reader)))
+    return est, result
+
+
+def test_a_sensor_with_weight_zero_is_switched_off():
+    """``weight: 0`` removes a camera from eq. 2 (it used to fall back to the default share);
+    the other sensors keep their default shares, and the likelihood is exactly their
+    weighted IoU sum over the temperature."""
+    from mvtop_cli.filter.motion import init_uniform_box
+
+    base = load_config(ROOT / "configs" / "conn2.yaml")
+    base = replace(base, filter=replace(base.filter, num_particles=100))
+    assert base.sensors.cameras[0].name == "front"
+    off = replace(base, sensors=replace(base.sensors, cameras=(replace(base.sensors.cameras[0], weight=0.0),
+                                                               *base.sensors.cameras[1:])))
+    poses = init_uniform_box(base.grasp_prior.pose.matrix(), 0.002, np.radians(5.0), 12, np.random.default_rng(3)).poses
+    tau = base.filter.temperature
+    for cfg, front_weight in ((base, 0.25), (off, 0.0)):
+        est, result = _first_frame_estimator(cfg)
+        assert not result.contact
+        assert result.sensors == ("left", "right", "front", "side")
+        iou_t, iou_v = est.last_ious(poses)
+        expected = (0.25 * iou_t.sum(axis=1) + front_weight * iou_v[:, 0] + 0.25 * iou_v[:, 1]) / tau
+        assert np.ptp(iou_v[:, 0]) > 0.05  # the front camera's IoU does vary over these poses
+        np.testing.assert_allclose(est.last_log_likelihood(poses), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_every_sensor_at_weight_zero_is_refused(tmp_path):
+    import yaml
+
+    from mvtop_cli.errors import ConfigError
+
+    data = yaml.safe_load((ROOT / "configs" / "conn2.yaml").read_text())
+    for kind in ("cameras", "tactile"):
+        for s in data["sensors"][kind]:
+            s["weight"] = 0.0
+    path = tmp_path / "conn2.yaml"
+    path.write_text(yaml.safe_dump(data))
+    (tmp_path / "meshes").symlink_to(ROOT / "configs" / "meshes")
+    with pytest.raises(ConfigError, match=r"conn2\.yaml: sensors: every sensor has weight 0"):
+        load_config(path)
