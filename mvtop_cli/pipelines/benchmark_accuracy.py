@@ -295,6 +295,7 @@ def _totals(out_dir: Path, reports: dict[tuple, dict]) -> dict:
         "run_seconds_sum": round(sum(float(b.get("seconds", 0.0)) for b in bench), 1),
         "run_cpu_seconds_sum": round(sum(float(b.get("cpu_seconds", 0.0)) for b in bench), 1),
         "simulate_seconds_sum": round(sum(float(b.get("simulate_seconds", 0.0)) for b in bench), 1),
+        "runs_without_simulate_time": sum("simulate_seconds" not in b for b in bench),
         "code_versions": dict(sorted(codes.items())),
     }
 
@@ -383,7 +384,9 @@ def _header_lines(summary: dict) -> list[str]:
              f"{len(summary['methods'])} methods){'' if done else ': not complete'}; code {codes}.",
              f"Time: {_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
              f"folder; per run (estimate + eval) {_duration(t['run_seconds_sum'])} wall and "
-             f"{_duration(t['run_cpu_seconds_sum'])} CPU in sum, simulation {_duration(t['simulate_seconds_sum'])}.", ""]
+             f"{_duration(t['run_cpu_seconds_sum'])} CPU in sum, simulation {_duration(t['simulate_seconds_sum'])}"
+             + (f" (not recorded for {t['runs_without_simulate_time']} runs)" if t.get("runs_without_simulate_time") else "")
+             + ".", ""]
     return lines
 
 
