@@ -63,6 +63,7 @@ class AccuracyOptions:
     workers: int = 1
     first_seed: int = 1000
     import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
+    summary_only: bool = False  # tables over the finished runs; no run is made
 
 
 RESULTS_FILE = "results.jsonl.gz"
@@ -155,9 +156,12 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         result = job[3] / "result.json"
         if result.is_file():
             reports[job[:3]] = json.loads(result.read_text())
-        else:
+        elif not options.summary_only:
             todo.append(job)
     done = len(reports)
+    if options.summary_only and not reports:
+        raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
+                         "(expected runs/*/result.json, or --import-results FILE)")
     if progress is not None:
         progress(done, len(jobs))
     threads = max(1, (os.cpu_count() or 1) // max(1, options.workers))
@@ -180,7 +184,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                 if progress is not None:
                     progress(done, len(jobs))
     seconds = time.perf_counter() - t0
-    _append_invocation(out_dir, options, len(todo), imported, seconds)
+    if not options.summary_only:
+        _append_invocation(out_dir, options, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
                "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
                "imported_this_run": imported, "totals": _totals(out_dir, reports), "table": {}}
@@ -206,9 +211,19 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     return summary
 
 
+_TRACE_KEYS = ("insertion_error_mm", "translation_error_mm", "rotation_error_deg")
+
+
 def compact_record(report: dict) -> dict:
-    """What the tables and plots need of one run's result.json (no per-frame rows)."""
-    return {k: report[k] for k in _RECORD_KEYS if k in report}
+    """What the tables and plots need of one run's result.json, plus the per-frame errors
+    rounded to 0.1 um / 0.0001 deg as ``trace`` (for drift and convergence analyses)."""
+    rec = {k: report[k] for k in _RECORD_KEYS if k in report}
+    frames = report.get("per_frame")
+    if isinstance(frames, list) and frames:
+        rec["trace"] = {k: [None if f.get(k) is None else round(float(f[k]), 4) for f in frames] for k in _TRACE_KEYS}
+    elif "trace" in report:
+        rec["trace"] = report["trace"]
+    return rec
 
 
 def write_results(path: Path, reports: dict[tuple, dict]) -> None:

@@ -80,6 +80,8 @@ def test_benchmark_accuracy_results_carry_over_to_another_folder(tmp_path):
     records = [json.loads(line) for line in gzip.decompress((a / "results.jsonl.gz").read_bytes()).splitlines()]
     done = json.loads((a / "runs" / "conn2_1000_M-TOP" / "result.json").read_text())
     assert len(records) == 1 and records[0]["final"] == done["final"] and "per_frame" not in records[0]
+    assert records[0]["trace"]["insertion_error_mm"] == [round(f["insertion_error_mm"], 4) for f in done["per_frame"]]
+    assert len(records[0]["trace"]["rotation_error_deg"]) == 6
     code = records[0]["benchmark"]["code"]
     assert len(code) == 12 and records[0]["benchmark"]["simulate_seconds"] > 0
 
@@ -104,6 +106,15 @@ def test_benchmark_accuracy_results_carry_over_to_another_folder(tmp_path):
     lines = [json.loads(x) for x in (b / "invocations.jsonl").read_text().splitlines()]
     assert [x["runs_made"] for x in lines] == [1, 0] and [x["runs_imported"] for x in lines] == [1, 0]
     assert json.loads((b / "summary.json").read_text())["totals"]["invocations"] == 2
+    # --summary-only makes no run: the tables cover what is there, and say it is not complete
+    c = tmp_path / "c"
+    only = run("benchmark", "accuracy", "--out", str(c), "--poses", "3", *small, "--summary-only",
+               "--import-results", str(b / "results.jsonl.gz"))
+    assert only.returncode == 0, only.stderr
+    assert "2 of 3 runs (3 grasps per object x 1 objects x 1 methods): not complete" in only.stdout
+    assert not (c / "runs" / "conn2_1002_M-TOP").exists() and not (c / "scenes").exists()
+    empty = run("benchmark", "accuracy", "--out", str(tmp_path / "d"), "--poses", "1", *small, "--summary-only")
+    assert empty.returncode != 0 and "no finished run" in empty.stderr and "\n" not in empty.stderr.strip()
 
 
 def test_benchmark_accuracy_refuses_a_damaged_results_file(tmp_path):
