@@ -10,8 +10,9 @@ clearance (table I). Runs are independent processes; each run's report is kept u
 ``OUT/runs/``, so an interrupted benchmark resumes where it stopped. ``summary.html`` shows
 the errors as log-scale box plots per object and method, like the paper's figure 4.
 
-``OUT/results.jsonl.gz`` holds every finished run in compact form (what the tables need, one
-JSON line per run, tagged with a fingerprint of the code that made it); given to another
+``OUT/results.jsonl.gz`` holds the finished runs the summary covers in compact form (what the
+tables need and the per-frame errors, one JSON line per run, tagged with a fingerprint of the
+code that made it); given to another
 benchmark folder with ``import_results`` it counts those runs as done, which carries a long
 benchmark across machines. ``OUT/invocations.jsonl`` records each invocation's wall time.
 """
