@@ -395,14 +395,19 @@ def _header_lines(summary: dict) -> list[str]:
         return []
     codes = ", ".join(f"{c} ({n} runs)" for c, n in t["code_versions"].items())
     done = summary["runs"] == summary["runs_requested"]
+    missing_sim = t.get("runs_without_simulate_time", 0)
+    if missing_sim == summary["runs"]:
+        sim = "simulation time not recorded"
+    else:
+        sim = f"simulation {_duration(t['simulate_seconds_sum'])}" + (
+            f" (not recorded for {missing_sim} runs)" if missing_sim else "")
+    wall = (f"{_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
+            "folder; " if t["invocations"] else "")
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
              f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
              f"{len(summary['methods'])} methods){'' if done else ': not complete'}; code {codes}.",
-             f"Time: {_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
-             f"folder; per run (estimate + eval) {_duration(t['run_seconds_sum'])} wall and "
-             f"{_duration(t['run_cpu_seconds_sum'])} CPU in sum, simulation {_duration(t['simulate_seconds_sum'])}"
-             + (f" (not recorded for {t['runs_without_simulate_time']} runs)" if t.get("runs_without_simulate_time") else "")
-             + ".", ""]
+             f"Time: {wall}the runs (estimate + eval) added up to {_duration(t['run_seconds_sum'])} wall and "
+             f"{_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]
     return lines
 
 
