@@ -128,3 +128,26 @@ def test_benchmark_accuracy_refuses_a_damaged_results_file(tmp_path):
     assert proc.returncode != 0
     assert f"{bad} line 2: expected a benchmark record" in proc.stderr
     assert not list((tmp_path / "b").glob("runs/*/result.json"))
+
+
+def test_readme_benchmark_tables_are_those_of_the_committed_results(tmp_path):
+    """The README's benchmark tables are what --summary-only prints over the committed
+    benchmarks/accuracy/results.jsonl.gz, line for line (docs and data cannot drift apart)."""
+    import re
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "README.md").read_text()
+    # the command the README gives, run as it is given (only the output folder differs)
+    command = re.search(r"mvtop benchmark accuracy --out /tmp/bench (--poses \d+) --summary-only "
+                        r"--import-results (benchmarks/accuracy/results\.jsonl\.gz)", text)
+    assert command, "README: the --summary-only command over the committed results is missing"
+    poses = command.group(1).split()
+    proc = run("benchmark", "accuracy", "--out", str(tmp_path / "b"), *poses, "--summary-only",
+               "--import-results", str(root / command.group(2)))
+    assert proc.returncode == 0, proc.stderr
+    summary = (tmp_path / "b" / "summary.md").read_text().splitlines()
+    readme = text.splitlines()
+    rows = [line for line in summary if line.startswith("| M-")]
+    assert len(rows) == 9  # errors, success rates and times of three methods
+    for line in [summary[0], *rows]:
+        assert line in readme, line
