@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from . import __version__
+from .durations import format_duration
 from .errors import MvtopError
 
 LOG_PATH = click.Path(exists=False, dir_okay=True, path_type=Path)
@@ -99,9 +100,9 @@ def _progress(label: str, resumable: bool = False):
         plain["last"] = now
         elapsed = now - plain["t0"]
         rate = (done - plain["first"]) / elapsed if elapsed > 0 else 0.0
-        left = "" if done >= total or rate <= 0 else f", about {_duration((total - done) / rate)} left"
+        left = "" if done >= total or rate <= 0 else f", about {format_duration((total - done) / rate)} left"
         pct = 100.0 * done / max(total, 1)
-        click.echo(f"{label}: {done}/{total} ({pct:.0f} %), {_duration(elapsed)} elapsed{left}", err=True)
+        click.echo(f"{label}: {done}/{total} ({pct:.0f} %), {format_duration(elapsed)} elapsed{left}", err=True)
 
     def update(done: int, total: int) -> None:
         nonlocal bar, start
@@ -129,16 +130,6 @@ def _progress(label: str, resumable: bool = False):
 # Seconds between two plain progress lines when stderr is not a terminal: often enough to
 # show that a long job (a benchmark of hours) is alive, rarely enough to keep logs short.
 _PLAIN_PROGRESS_INTERVAL_S = 60.0
-
-
-def _duration(seconds: float) -> str:
-    """``42 s``, ``7 min 5 s`` or ``3 h 12 min``."""
-    s = int(round(seconds))
-    if s < 60:
-        return f"{s} s"
-    if s < 3600:
-        return f"{s // 60} min {s % 60} s"
-    return f"{s // 3600} h {s % 3600 // 60} min"
 
 
 @contextlib.contextmanager

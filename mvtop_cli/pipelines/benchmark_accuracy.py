@@ -26,6 +26,7 @@ import html
 import json
 import os
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ..eval import report as R
+from ..durations import format_duration
 from ..errors import MvtopError
 from ..io.atomic import atomic_output
 
@@ -302,9 +304,7 @@ def _totals(out_dir: Path, reports: dict[tuple, dict]) -> dict:
             except json.JSONDecodeError:
                 continue  # a line cut by a crash: its time is not counted
     bench = [r.get("benchmark", {}) for r in reports.values()]
-    codes: dict[str, int] = {}
-    for b in bench:
-        codes[b.get("code", "unrecorded")] = codes.get(b.get("code", "unrecorded"), 0) + 1
+    codes = Counter(b.get("code", "unrecorded") for b in bench)
     return {
         "invocations": len(invocations),
         "wall_seconds_all_invocations": round(sum(float(i.get("seconds", 0.0)) for i in invocations), 1),
@@ -382,11 +382,6 @@ def render_html(summary: dict) -> str:
     ])
 
 
-def _duration(seconds: float) -> str:
-    m = int(round(seconds / 60))
-    return f"{m // 60} h {m % 60:02d} min" if m >= 60 else f"{m} min"
-
-
 def _header_lines(summary: dict) -> list[str]:
     """What the tables are over: runs done of those requested, the code that made them,
     and the time spent (older summaries without these keys get no header)."""
@@ -399,15 +394,15 @@ def _header_lines(summary: dict) -> list[str]:
     if missing_sim == summary["runs"]:
         sim = "simulation time not recorded"
     else:
-        sim = f"simulation {_duration(t['simulate_seconds_sum'])}" + (
+        sim = f"simulation {format_duration(t['simulate_seconds_sum'])}" + (
             f" (not recorded for {missing_sim} runs)" if missing_sim else "")
-    wall = (f"{_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
+    wall = (f"{format_duration(t['wall_seconds_all_invocations'])} wall over {t['invocations']} invocation(s) of this "
             "folder; " if t["invocations"] else "")
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
              f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
              f"{len(summary['methods'])} methods){'' if done else ': not complete'}; code {codes}.",
-             f"Time: {wall}the runs (estimate + eval) added up to {_duration(t['run_seconds_sum'])} wall and "
-             f"{_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]
+             f"Time: {wall}the runs (estimate + eval) added up to {format_duration(t['run_seconds_sum'])} wall and "
+             f"{format_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]
     return lines
 
 

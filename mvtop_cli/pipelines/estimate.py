@@ -427,10 +427,8 @@ class Estimator:
         # through the filter and the re-search check (restarting from the grasp prior at that
         # frame was no better on logs with one pad's image flipped: conn1 3.9 deg against 1.5
         # deg this way after 14 frames, conn2 2.5 against 3.7)
-        sensor_iou, informative = self._agreement(result.estimate, ious, tac_names + cam_names, crops, outside)
-        # a sensor switched off (weight 0) neither votes in nor is judged by the watch
-        for n, w in zip(tac_names + cam_names, np.concatenate([base_gamma, base_nu])):
-            informative[n] = informative[n] and w > 0
+        sensor_iou, informative = self._agreement(result.estimate, ious, tac_names + cam_names, crops, outside,
+                                                  np.concatenate([base_gamma, base_nu]))
         for name, iou, others in self.consistency.observe(sensor_iou, informative):
             what = "tactile sensor" if name in tac_names else "camera"
             warnings.append(warning(
@@ -486,13 +484,17 @@ class Estimator:
             scaled[full] *= (weights.sum() - scaled[~full].sum()) / scaled[full].sum()
         return scaled
 
-    def _agreement(self, T_ee_obj: np.ndarray, ious, names: list[str], crops: dict, outside: dict) -> tuple[dict, dict]:
+    def _agreement(self, T_ee_obj: np.ndarray, ious, names: list[str], crops: dict, outside: dict,
+                   weights: np.ndarray) -> tuple[dict, dict]:
         """Per sensor: the IoU of its observed mask with the mask rendered at the estimate
-        ``T_ee_obj`` (4, 4), and whether it is informative (not both masks empty)."""
+        ``T_ee_obj`` (4, 4), and whether it is informative (not both masks empty, and not
+        switched off by a weight of 0: such a sensor neither votes in nor is judged by the
+        consistency watch)."""
         iou_t, iou_v = ious(T_ee_obj[None])
         values = np.concatenate([iou_t[0], iou_v[0]])
         iou = {n: float(v) for n, v in zip(names, values)}
-        informative = {n: bool(crops[n].any() or outside[n] > 0 or iou[n] < 1.0) for n in names}
+        informative = {n: bool(w > 0 and (crops[n].any() or outside[n] > 0 or iou[n] < 1.0))
+                       for n, w in zip(names, weights)}
         return iou, informative
 
 
