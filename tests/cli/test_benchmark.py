@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -133,8 +134,6 @@ def test_benchmark_accuracy_refuses_a_damaged_results_file(tmp_path):
 def test_readme_benchmark_tables_are_those_of_the_committed_results(tmp_path):
     """The README's benchmark tables are what --summary-only prints over the committed
     benchmarks/accuracy/results.jsonl.gz, line for line (docs and data cannot drift apart)."""
-    import re
-
     root = Path(__file__).resolve().parents[2]
     text = (root / "README.md").read_text()
     # the command the README gives, run as it is given (only the output folder differs)
