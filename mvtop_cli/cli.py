@@ -22,6 +22,23 @@ CONFIG_OPTION = click.option(
 )
 
 
+def particles_option(default: int | None = None, what: str = "Particles"):
+    """``--particles N``: the filter's particle count (default: the config's, or ``default``)."""
+    if default is None:
+        return click.option("--particles", type=click.IntRange(10, 1_000_000), help=f"{what} (default: the config's).")
+    return click.option("--particles", type=click.IntRange(10, 1_000_000), default=default, show_default=True,
+                        help=f"{what}.")
+
+
+def seed_option(default: int | None = None, what: str = "Random seed"):
+    """``--seed N``: the seed of a random process (default: the config's, or ``default``)."""
+    if default is None:
+        return click.option("--seed", type=click.IntRange(min=0),
+                            help=f"{what} (default: the config's): same seed, same outputs.")
+    return click.option("--seed", type=click.IntRange(min=0), default=default, show_default=True,
+                        help=f"{what}: same seed, same outputs.")
+
+
 class _Group(click.Group):
     """Lists commands in the order they were added (the order of a typical session)."""
 
@@ -165,7 +182,7 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 
 @cli.command("simulate")
 @click.option("--object", "object_name", metavar="NAME", help="Object to simulate (see --list).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed: same seed, same bytes.")
+@seed_option(0)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Output log (.mcap).")
 @click.option("--frames", type=click.IntRange(4, 100000), default=30, show_default=True, help="Frames at 10 Hz.")
 @click.option("--grasp-translation-mm", type=click.FloatRange(0, 20), default=3.0, show_default=True,
@@ -286,8 +303,8 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
               help="Output folder: track.mcap, track.csv, summary.json, config.resolved.yaml.")
 @click.option("--modalities", metavar="LIST",
               help="Comma-separated subset of vision,tactile,contact (default: the config's).")
-@click.option("--particles", type=click.IntRange(10, 1_000_000), help="Number of particles (default: the config's).")
-@click.option("--seed", type=click.IntRange(min=0), help="Random seed (default: the config's): same seed, same outputs.")
+@particles_option(what="Number of particles")
+@seed_option()
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run from the checkpoint in --out, after its last completed frame "
@@ -355,7 +372,7 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
         line += (f"; error vs ground truth {f['ground_truth_translation_error_mm']:.3f} mm, "
                  f"{f['ground_truth_rotation_error_deg']:.2f} deg")
     click.echo(line)
-    from .pipelines.estimate import warning_report
+    from .pipelines.track import warning_report
 
     for line in warning_report(summary):  # one line per kind of failure (summary.json has every frame)
         click.echo(f"mvtop: warning: {line} (see summary.json)", err=True)
@@ -436,9 +453,10 @@ def render_masks_cmd(log: Path, config_path: Path | None, track_dir: Path | None
     if pose_ee is not None:
         try:
             v = [float(x) for x in pose_ee.split(",")]
-            assert len(v) == 7 and abs(np.linalg.norm(v[3:]) - 1.0) < 1e-3
-        except (ValueError, AssertionError):
-            raise MvtopError(f"--pose-ee: expected x,y,z,qx,qy,qz,qw with a unit quaternion, got {pose_ee!r}") from None
+        except ValueError:
+            v = []
+        if len(v) != 7 or abs(np.linalg.norm(v[3:]) - 1.0) >= 1e-3:
+            raise MvtopError(f"--pose-ee: expected x,y,z,qx,qy,qz,qw with a unit quaternion, got {pose_ee!r}")
         T = se3.from_quat_xyzw(np.array(v[3:]), np.array(v[:3]))
     options = RenderMasksOptions(frames=tuple(frames) if frames else None, pose_ee=T, video=not no_video)
     with _progress("render-masks") as update:
@@ -475,7 +493,7 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
     import json
     import os
 
-    from .render.benchmark import benchmark_render
+    from .benchmarks.render_speed import benchmark_render
 
     try:
         counts = [int(v) for v in particles_list.split(",")]
@@ -502,7 +520,7 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
     if log_path is not None:
         if config_path is None:
             raise MvtopError("--log needs --config (the masking backends come from the config)")
-        from .pipelines.observe import masking_speed
+        from .benchmarks.masking_speed import masking_speed
 
         masking = masking_speed(log_path, cfg)
     if as_json:
@@ -528,7 +546,7 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
-@click.option("--particles", type=click.IntRange(10, 1_000_000), help="Particles (default: the config's).")
+@particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="results.jsonl.gz of another benchmark folder: its runs count as done here (continue a "
@@ -542,7 +560,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
     log-scale box plots of the errors per object and method in OUT/summary.html. OUT/results.jsonl.gz
     keeps every finished run in compact form, for --import-results elsewhere."""
-    from .pipelines.benchmark_accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
+    from .benchmarks.accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
     from .sim.objects import get_object, list_objects
 
     objs = tuple(o.strip() for o in objects.split(",")) if objects else tuple(list_objects())
@@ -563,9 +581,9 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
 @benchmark_group.command("long-log")
 @click.option("--size-gb", type=click.FloatRange(0.01, 100), default=2.0, show_default=True,
               help="Size of the simulated log [GB, 1e9 bytes].")
-@click.option("--particles", type=click.IntRange(10, 1_000_000), default=200, show_default=True, help="Particles.")
+@particles_option(200)
 @click.option("--object", "object_name", default="cube", show_default=True, metavar="NAME", help="Object to simulate.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Simulation seed.")
+@seed_option(0, "Simulation seed")
 @click.option("--keep", type=click.Path(file_okay=False, path_type=Path),
               help="Keep the log, config and track in this folder (a log made there before with the same "
                    "object, seed and size is reused); default: a temporary folder, deleted afterwards.")
@@ -579,7 +597,7 @@ def benchmark_long_log_cmd(size_gb: float, particles: int, object_name: str, see
     (linear time: equal) and the total time."""
     import json
 
-    from .pipelines.benchmark_long_log import LongLogOptions, benchmark_long_log
+    from .benchmarks.long_log import LongLogOptions, benchmark_long_log
     from .sim.objects import get_object
 
     get_object(object_name)

@@ -110,8 +110,13 @@ class TactileSensor:
 
 @dataclass(frozen=True)
 class SensorsConfig:
+    """The cameras and tactile sensors, and how eq. 2 splits the score between the modalities."""
+
     cameras: tuple[CameraSensor, ...] = ()
     tactile: tuple[TactileSensor, ...] = ()
+    tactile_share: float = field(default=0.5, metadata=_rng(
+        0.0, 1.0, doc="eq. 2: the tactile sensors' share of the score when cameras and touch are both enabled "
+                      "(the cameras hold the rest); each modality keeps its share on frames where the other has no image"))
 
 
 @dataclass(frozen=True)
@@ -165,6 +170,15 @@ class MaskingConfig:
     camera: BackendConfig = BackendConfig("classical")
     tactile: BackendConfig = BackendConfig("difference")
     prompt_when_converged: bool = False
+    candidates: int = field(default=96, metadata=_rng(
+        1, 100_000, doc="Algorithm 1: the best-weighted particles whose renders choose among the camera proposals"))
+    converged_translation_m: float = field(default=0.0005, metadata=_rng(
+        0.0, 0.1, doc="with prompt_when_converged: the belief's RMS translation spread below which it counts as converged"))
+    converged_rotation_deg: float = field(default=1.5, metadata=_rng(
+        0.0, 180.0, doc="with prompt_when_converged: the same for the RMS rotation spread"))
+    tactile_depth_threshold_m: float = field(default=2e-5, metadata=_rng(
+        0.0, 0.01, lo_open=True, doc="indentation below this is undeformed gel (tactile masks from a depth topic, "
+                                    "and the rendered tactile masks)"))
 
 
 @dataclass(frozen=True)
@@ -179,9 +193,69 @@ class FilterConfig:
     sigma_high_rotation_deg: float = field(default=0.25, metadata=_rng(0.0, 180.0))
     resampling: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     ess_threshold: float = field(default=0.5, metadata=_rng(0.0, 1.0))
-    refine_iterations: int = field(default=8, metadata=_rng(0, 1000))
+    refine_iterations: int = field(default=8, metadata=_rng(0, 1000, doc="0: Algorithm 3's single importance update; "
+                                                                          "more: the tempered SMC refinement's stages"))
+    refine_shrink: float = field(default=0.5, metadata=_rng(
+        0.0, 1.0, lo_open=True, doc="factor of the refinement's Metropolis proposal scale when its acceptance is low"))
+    refine_target_ess_fraction: float = field(default=0.5, metadata=_rng(
+        0.0, 1.0, lo_open=True, doc="fraction of the ESS each adaptive tempering stage keeps"))
+    floor_translation_m: float = field(default=5e-5, metadata=_rng(
+        0.0, 0.01, lo_open=True, doc="smallest kernel / proposal sigma per axis of the refinement, and of the jump check"))
+    floor_rotation_deg: float = field(default=0.05, metadata=_rng(0.0, 10.0, lo_open=True))
+    ess_collapse_fraction: float = field(default=0.01, metadata=_rng(
+        0.0, 1.0, doc="an ESS below this fraction of the particles (at least 2) counts as collapsed"))
+    collapse_retry_iterations: int = field(default=24, metadata=_rng(
+        0, 1000, doc="a frame whose ESS collapsed is redone with max(this, 3 x refine_iterations) stages; 0: only flag it"))
+    jump_sigmas: float = field(default=5.0, metadata=_rng(
+        0.0, 1000.0, lo_open=True, doc="estimate_jump: a move beyond this many RMS spreads of the predicted belief"))
     roi_size_px: int = field(default=128, metadata=_rng(16, 1024))
     seed: int = field(default=0, metadata=_rng(0, 2**63 - 1))
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """The cross-entropy searches around the filter: the first frame's two independent
+    searches of the grasp prior (multi-start), and every later frame's local re-search check
+    (a frame is redone from the searched poses when they beat the belief by ``recheck_margin``)."""
+
+    init_factor: int = field(default=6, metadata=_rng(1, 1000, doc="prior samples per particle in each first-frame search"))
+    first_frame_iteration_factor: int = field(default=3, metadata=_rng(
+        1, 100, doc="refinement iterations on the first frame (and after a re-search), in units of filter.refine_iterations"))
+    rounds: int = field(default=12, metadata=_rng(0, 1000, doc="rounds of a first-frame search"))
+    elite_fraction: float = field(default=0.1, metadata=_rng(0.0, 1.0, lo_open=True))
+    widen: float = field(default=1.5, metadata=_rng(0.0, 100.0, lo_open=True, doc="sigma factor of the elite's Gaussian"))
+    floor_translation_m: float = field(default=5e-5, metadata=_rng(0.0, 0.01, lo_open=True))
+    floor_rotation_deg: float = field(default=0.05, metadata=_rng(0.0, 10.0, lo_open=True))
+    bound: float = field(default=2.0, metadata=_rng(
+        0.0, 100.0, lo_open=True, doc="searches stay within this many grasp-prior half-widths (twice as many sigmas "
+                                      "for a gaussian prior) of the nominal grasp"))
+    recheck_sigma_translation_m: float = field(default=0.001, metadata=_rng(
+        0.0, 0.1, doc="per-axis widening of the belief that starts each frame's re-search"))
+    recheck_sigma_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0))
+    recheck_rounds: int = field(default=3, metadata=_rng(0, 1000))
+    recheck_margin: float = field(default=10.0, metadata=_rng(
+        0.0, 1e6, doc="nats by which a searched pose must beat the estimate and the best particle to redo the frame"))
+
+
+@dataclass(frozen=True)
+class ConsistencyConfig:
+    """The sensor consistency watch (``filter.health.SensorConsistency``): a sensor whose
+    mask disagrees with the estimate the others agree on for ``frames`` frames in a row has
+    its eq. 2 weight scaled by ``factor`` for the rest of the run."""
+
+    low_iou: float = field(default=0.5, metadata=_rng(0.0, 1.0, doc="a sensor disagrees below this IoU at the estimate"))
+    consensus_iou: float = field(default=0.7, metadata=_rng(0.0, 1.0, doc="... while the others' median IoU is at least this"))
+    frames: int = field(default=5, metadata=_rng(1, 100_000))
+    factor: float = field(default=0.01, metadata=_rng(0.0, 1.0))
+    min_others: int = field(default=2, metadata=_rng(1, 1000, doc="informative full-weight sensors needed to judge one"))
+    max_fraction: float = field(default=0.5, metadata=_rng(0.0, 1.0, doc="at most this fraction of the sensors is scaled down"))
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """What the track files hold beyond the estimates."""
+
+    track_particles: int = field(default=200, metadata=_rng(0, 1_000_000, doc="particles per frame in track.mcap"))
 
 
 @dataclass(frozen=True)
@@ -208,7 +282,10 @@ class Config:
     grasp_prior: GraspPrior = GraspPrior()
     masking: MaskingConfig = MaskingConfig()
     filter: FilterConfig = FilterConfig()
+    search: SearchConfig = SearchConfig()
+    consistency: ConsistencyConfig = ConsistencyConfig()
     contact: ContactConfig = ContactConfig()
+    output: OutputConfig = OutputConfig()
     modalities: tuple[Literal["vision", "tactile", "contact"], ...] = MODALITIES
     sync_tolerance_s: float = field(default=0.02, metadata=_rng(0.0, 10.0))
     source: Path | None = field(default=None, metadata={"internal": True})

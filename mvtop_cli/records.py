@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .geometry import se3
 from .geometry.camera import PinholeCamera
 
 
@@ -56,3 +57,18 @@ class Frame:
     contact: bool | None = None
     finger_opening_m: float | None = None
     T_world_object_gt: np.ndarray | None = None
+
+    def image(self, sensor: str) -> SensorImage:
+        """The image of ``sensor`` (a camera or a tactile sensor) in this frame."""
+        return self.cameras[sensor] if sensor in self.cameras else self.tactile[sensor]
+
+    def T_world_ee_at(self, img: SensorImage) -> np.ndarray:
+        """The end effector in ``world`` (4, 4) when ``img`` was taken: the held object is
+        placed in each image with the gripper pose of that image's own stamp."""
+        return self.T_world_ee if img.T_world_ee is None else img.T_world_ee
+
+    def T_sensor_object(self, sensor: str, T_ee_object: np.ndarray) -> np.ndarray:
+        """Object poses (..., 4, 4) in ``sensor``'s optical frame at its image's time:
+        ``T_sensor_world @ T_world_ee(image stamp) @ T_ee_object``."""
+        img = self.image(sensor)
+        return se3.invert(img.T_world_sensor) @ (self.T_world_ee_at(img) @ T_ee_object)

@@ -12,7 +12,7 @@ from pathlib import Path
 import trimesh
 from numba import set_num_threads
 
-from mvtop_cli.render.benchmark import benchmark_render, default_meshes
+from mvtop_cli.benchmarks.render_speed import benchmark_render, default_meshes
 
 
 def main() -> None:

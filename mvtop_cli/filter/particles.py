@@ -35,6 +35,32 @@ def ess_from_log_weights(log_weights: np.ndarray) -> float:
     return float(np.exp(-logsumexp(2.0 * lw)))
 
 
+def largest_exponent(log_weights: np.ndarray, log_likelihood: np.ndarray, max_exponent: float, goal_ess: float) -> float:
+    """The largest ``b`` in [0, max_exponent] whose tempered reweighting ``w L^b`` keeps an
+    effective sample size of at least ``goal_ess`` (bisection, 60 halvings; ``max_exponent``
+    itself when it keeps it). Particles with a non-finite log-likelihood (N,) get weight zero.
+
+    The one tempering rule of the filter: the SMC refinement's adaptive stages (Jasra et al.
+    2011) and the searches' tempered resampling of a scored population both use it."""
+    finite = np.isfinite(log_likelihood)
+    ll = np.where(finite, log_likelihood - np.max(log_likelihood[finite]), 0.0)
+    base = np.where(finite, log_weights, -np.inf)
+
+    def ess(b: float) -> float:
+        return ess_from_log_weights(base + b * ll)
+
+    if ess(max_exponent) >= goal_ess:
+        return float(max_exponent)
+    lo, hi = 0.0, float(max_exponent)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if ess(mid) >= goal_ess:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
 @dataclass(frozen=True)
 class Spread:
     """How widely a particle set is spread around its mean.

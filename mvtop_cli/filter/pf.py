@@ -1,282 +1,54 @@
 """The pose particle filter loop (Algorithm 3), kept apart from the model it runs.
 
-The model is three things handed in: a ``MotionModel`` (Algorithm 4), a resampling
-scheme name, and per frame a ``log_likelihood_fn`` mapping particles
+The model is three things handed in: a motion model (Algorithm 4, ``Motion``), a
+resampling scheme name, and per frame a ``log_likelihood_fn`` mapping particles
 ``T_ee_object (N, 4, 4)`` to log-likelihoods ``(N,)`` (eq. 6 in log space: the
 visuo-tactile log-score of eq. 1-2 plus the contact log-likelihood of eq. 8-9). The
 filter never looks inside them.
 
-Two ways to use a frame's observation, each of which uses it exactly once:
+Two ways to use a frame's observation, each of which uses it exactly once, chosen in one
+place (``assimilate``):
 
 * ``update``: Algorithm 3 as printed, one importance update ``log w += log p(y | x)``
   then resampling when the ESS falls below a threshold.
 * ``refine``: an annealed (tempered) SMC sampler for the same posterior
-  ``p(x | y_1:k) ∝ p(x | y_1:k-1) p(y_k | x)``. One importance update with ~1000
-  particles cannot reach sub-millimetre precision when the prior is ±3 mm / ±10° and the
-  IoU likelihood is sharp: almost no particle lands in the likelihood's peak, so the
-  weights collapse onto a few poor particles. ``refine`` instead moves the particles into
-  the peak while keeping the posterior honest; see its docstring.
+  ``p(x | y_1:k) ∝ p(x | y_1:k-1) p(y_k | x)`` (``smc.TemperedRefinement``). One importance
+  update with ~1000 particles cannot reach sub-millimetre precision when the prior is
+  ±3 mm / ±10° and the IoU likelihood is sharp: almost no particle lands in the likelihood's
+  peak, so the weights collapse onto a few poor particles. ``refine`` instead moves the
+  particles into the peak while keeping the posterior honest.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from scipy.special import logsumexp
 
-from ..geometry import se3
-from .motion import MotionModel, perturb_about_origin
-from .particles import ParticleSet, Spread, ess_from_log_weights, normalise_log_weights
+from .health import JumpCheck, check_jump
+from .particles import ParticleSet, Spread
 from .resampling import get_scheme, resample_if_needed
-
-LogLikelihoodFn = Callable[[np.ndarray], np.ndarray]
-"""Maps particles ``T_ee_object (N, 4, 4)`` to log-likelihoods ``(N,)``. ``-inf`` means
-impossible; NaN and ``+inf`` are treated as invalid (weight zero) and counted."""
-
-_DIM = 6
-# Optimal random-walk Metropolis scale for a d-dimensional Gaussian target whose
-# covariance the proposal copies (Roberts, Gelman & Gilks 1997): 2.38 / sqrt(d).
-_RW_SCALE = 2.38 / np.sqrt(_DIM)
-# Acceptance band outside which the refinement's proposal scale is adapted; random-walk
-# Metropolis is efficient for acceptance rates of roughly 0.2-0.5.
-_ACCEPT_LOW, _ACCEPT_HIGH = 0.15, 0.5
-# Share of particles given an independence proposal in each Metropolis sweep, and the
-# inflation of its covariance over the particles' (heavier coverage of the tails keeps
-# the independence sampler's weights bounded); measured to mix faster per likelihood
-# evaluation than the random walk alone (0.5 vs 0: rotation error after 3 frames
-# ~0.1° vs ~0.2° on the synthetic test with 500 particles).
-_INDEPENDENT_FRACTION = 0.5
-_INDEPENDENT_INFLATION = 1.5
+from .result import LogLikelihoodFn, StepResult, evaluate, finish
+from .smc import TemperedRefinement, check_shrink
 
 
-@dataclass(frozen=True)
-class StepResult:
-    """What one filter update produced.
+class Motion(Protocol):
+    """What the filter needs of a motion model (Algorithm 4)."""
 
-    particles : ParticleSet
-      The particles to carry to the next frame (resampled if ``resampled``).
-    estimate : (4, 4) float
-      ``T_ee_object`` estimate: weighted SE(3) mean of the updated particles. ``update``
-      takes it before resampling (resampling only adds Monte-Carlo noise to the mean);
-      ``refine`` takes it from its final, equally weighted particles.
-    spread : Spread
-      Mean and covariance of the same weighted set.
-    ess : float
-      Effective sample size of the updated weights, before resampling.
-    resampled : bool
-      Whether the returned particles were resampled.
-    log_evidence : float
-      Estimate of ``log p(y_k | y_1:k-1)``, the log of the weighted mean likelihood of
-      this frame (``-inf`` when every likelihood was zero or invalid).
-    diagnostics : dict
-      ``flags`` (list of raised flag names: ``degenerate_weights``, ``ess_collapsed``,
-      ``estimate_jump``, ``tempering_forced``), the matching booleans,
-      ``invalid_log_likelihood`` (count of NaN / +inf values received),
-      ``evaluated_poses`` (how many poses were scored), ``min_ess`` (the smallest ESS of
-      the update: of the weights for ``update``, of any tempering stage for ``refine``)
-      and ``ess_collapse_threshold``, the jump and its allowance, and for ``refine`` the
-      per-stage ``betas``, ``stage_ess``, ``acceptance_rates`` and
-      ``likelihood_evaluations``. A frame redone after a collapse (see
-      ``ParticleFilter``'s ``collapse_retry_iterations``) adds ``collapse_retry``: the
-      iterations of the redo, ``min_ess_before`` and ``recovered`` (the redo's ESS stayed
-      above the threshold).
-    """
+    def sigmas(self, contact: bool) -> tuple[float, float]:
+        """Per-axis (translation [m], rotation [rad]) noise for this contact state."""
 
-    particles: ParticleSet
-    estimate: np.ndarray
-    spread: Spread
-    ess: float
-    resampled: bool
-    log_evidence: float
-    diagnostics: dict = field(default_factory=dict)
-
-    @property
-    def flags(self) -> tuple[str, ...]:
-        """Names of the failure modes detected in this update."""
-        return tuple(self.diagnostics.get("flags", ()))
-
-
-def _evaluate(log_likelihood_fn: LogLikelihoodFn, poses: np.ndarray) -> tuple[np.ndarray, int]:
-    """Call the model; NaN / +inf become -inf (weight zero). Returns (log-lik (N,), n_invalid)."""
-    n = len(poses)
-    view = np.array(poses, dtype=np.float64)
-    view.flags.writeable = False
-    out = np.asarray(log_likelihood_fn(view), dtype=np.float64)
-    if out.shape != (n,):
-        raise ValueError(f"log_likelihood_fn returned shape {out.shape}, expected ({n},)")
-    invalid = np.isnan(out) | np.isposinf(out)
-    return np.where(invalid, -np.inf, out), int(invalid.sum())
-
-
-class _Chart:
-    """Tangent coordinates ``xi = (dt, dw)`` (6,) around an anchor pose, with the motion
-    model's convention: ``pose = perturb_about_origin(anchor, dt, dw)``."""
-
-    def __init__(self, anchor: np.ndarray) -> None:
-        self.anchor = np.asarray(anchor, dtype=np.float64)
-
-    def to_tangent(self, poses: np.ndarray) -> np.ndarray:
-        dt = poses[:, :3, 3] - self.anchor[:3, 3]
-        dw = se3.matrix_to_rotvec(poses[:, :3, :3] @ self.anchor[:3, :3].T)
-        return np.concatenate([dt, dw], axis=1)
-
-    def from_tangent(self, xi: np.ndarray) -> np.ndarray:
-        return perturb_about_origin(self.anchor, xi[:, :3], xi[:, 3:])
-
-
-def _weighted_cov(xi: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    mean = w @ xi
-    d = xi - mean
-    return mean, (d * w[:, None]).T @ d
-
-
-class _KernelPrior:
-    """Kernel-smoothed predictive density ``p^(xi) = sum_i w_i N(xi; m_i, h^2 C + F)`` in
-    chart coordinates (regularised particle filter, Musso, Oudjane & Le Gland 2001), with
-    Liu & West (2001) shrinkage ``m_i = a xi_i + (1 - a) mean``, ``a^2 + h^2 = 1``, so that
-    the smoothed density keeps the particles' mean and covariance (plus the floor ``F``).
-    ``h`` follows Silverman's rule for d = 6 at the particles' effective sample size."""
-
-    _BLOCK = 4_000_000  # query x centre pairs per block, bounds memory to ~32 MB
-
-    def __init__(self, xi: np.ndarray, log_w: np.ndarray, floor_var: np.ndarray) -> None:
-        keep = np.isfinite(log_w)
-        xi, log_w = xi[keep], log_w[keep] - logsumexp(log_w[keep])
-        w = np.exp(log_w)
-        n_eff = 1.0 / np.sum(w**2)
-        h2 = (4.0 / ((_DIM + 2) * n_eff)) ** (2.0 / (_DIM + 4))
-        a = np.sqrt(1.0 - h2)
-        mean, cov = _weighted_cov(xi, w)
-        self.bandwidth2 = h2
-        self.centres = a * xi + (1.0 - a) * mean
-        self.log_w = log_w
-        self.chol = np.linalg.cholesky(h2 * cov + np.diag(floor_var))
-        self._whiten = np.linalg.inv(self.chol).T  # row vectors: y = xi @ _whiten
-        self._white = self.centres @ self._whiten
-        self._white_sq = np.sum(self._white**2, axis=1)
-
-    def sample(self, idx: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Draws (len(idx), 6) from the kernels of centres ``idx`` (an exact draw from the
-        mixture when ``idx`` is a resample by the weights)."""
-        return self.centres[idx] + rng.standard_normal((len(idx), _DIM)) @ self.chol.T
-
-    def log_density(self, xi: np.ndarray) -> np.ndarray:
-        """Unnormalised log-density (Q,) at chart points (Q, 6) (constant dropped)."""
-        y = xi @ self._whiten
-        out = np.empty(len(xi))
-        step = max(1, self._BLOCK // len(self.centres))
-        for s in range(0, len(xi), step):
-            yb = y[s : s + step]
-            # log_w_i - |y - c_i|^2 / 2, expanded so the pairwise part is one matrix product
-            a = yb @ self._white.T
-            a -= 0.5 * (np.sum(yb**2, axis=1)[:, None] + self._white_sq[None, :])
-            np.minimum(a, 0.0, out=a)  # a squared distance is never negative
-            a += self.log_w[None, :]
-            peak = a.max(axis=1)
-            a -= peak[:, None]
-            np.exp(a, out=a)
-            out[s : s + step] = np.log(a.sum(axis=1)) + peak
-        return out
-
-
-class _GaussianProposal:
-    """Gaussian ``N(mean, cov)`` in chart coordinates, for independence Metropolis moves."""
-
-    def __init__(self, mean: np.ndarray, cov: np.ndarray) -> None:
-        self.mean = mean
-        self.chol = np.linalg.cholesky(cov)
-        self._whiten = np.linalg.inv(self.chol).T
-
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        return self.mean + rng.standard_normal((n, _DIM)) @ self.chol.T
-
-    def log_density(self, xi: np.ndarray) -> np.ndarray:
-        """Log-density up to a constant."""
-        y = (xi - self.mean) @ self._whiten
-        return -0.5 * np.sum(y**2, axis=1)
-
-
-def _next_increment(log_w: np.ndarray, log_lik: np.ndarray, max_delta: float, target: float) -> float:
-    """Tempering increment ``delta`` in (0, max_delta] whose reweighting by
-    ``lik^delta`` leaves ``target`` times the current ESS of the likely particles
-    (adaptive tempering, Jasra et al. 2011), found by bisection."""
-    finite = np.isfinite(log_lik)
-    ll = np.where(finite, log_lik - np.max(log_lik[finite]), 0.0)
-    base = np.where(finite, log_w, -np.inf)
-    goal = target * ess_from_log_weights(base)
-
-    def ess(delta: float) -> float:
-        return ess_from_log_weights(base + delta * ll)
-
-    if ess(max_delta) >= goal:
-        return max_delta
-    lo, hi = 0.0, max_delta
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if ess(mid) >= goal:
-            lo = mid
-        else:
-            hi = mid
-    return max(lo, 1e-12 * max_delta)
-
-
-class _SamplerState:
-    """Equally weighted particles of ``refine`` in chart coordinates, with their cached
-    log-likelihoods and smoothed-prior log-densities (N,)."""
-
-    def __init__(self, xi: np.ndarray) -> None:
-        self.xi = xi
-        self.log_lik = np.zeros(len(xi))
-        self.log_prior = np.zeros(len(xi))
-
-    def select(self, idx: np.ndarray) -> None:
-        self.xi, self.log_lik, self.log_prior = self.xi[idx], self.log_lik[idx], self.log_prior[idx]
-
-    def metropolis_sweep(
-        self,
-        prior: _KernelPrior,
-        chart: _Chart,
-        log_likelihood_fn: LogLikelihoodFn,
-        beta: float,
-        scale: float,
-        floor_var: np.ndarray,
-        rng: np.random.Generator,
-    ) -> tuple[float, float, int]:
-        """One move per particle leaving ``p^ L^beta`` invariant. Each particle picks, at
-        random and independently of its state, a random-walk or an independence proposal;
-        a mixture of invariant kernels is invariant. Returns (acceptance rate, acceptance
-        rate of the random-walk moves, invalid log-likelihood count)."""
-        n = len(self.xi)
-        mean, cov = _weighted_cov(self.xi, np.full(n, 1.0 / n))
-        cov = cov + np.diag(floor_var)
-        proposal = self.xi + rng.standard_normal((n, _DIM)) @ np.linalg.cholesky(scale**2 * cov).T
-        independent = rng.random(n) < _INDEPENDENT_FRACTION
-        log_q_ratio = np.zeros(n)  # log q(x | x') - log q(x' | x); 0 for the symmetric walk
-        if independent.any():
-            q = _GaussianProposal(mean, _INDEPENDENT_INFLATION * cov)
-            proposal[independent] = q.sample(int(independent.sum()), rng)
-            log_q_ratio[independent] = q.log_density(self.xi[independent]) - q.log_density(proposal[independent])
-        prop_lik, bad = _evaluate(log_likelihood_fn, chart.from_tangent(proposal))
-        prop_prior = prior.log_density(proposal)
-        valid = np.isfinite(prop_lik)
-        log_ratio = prop_prior - self.log_prior + beta * (np.where(valid, prop_lik, 0.0) - self.log_lik)
-        log_ratio = np.where(valid, log_ratio + log_q_ratio, -np.inf)
-        accept = np.log(rng.random(n)) < log_ratio
-        self.xi = np.where(accept[:, None], proposal, self.xi)
-        self.log_lik = np.where(accept, prop_lik, self.log_lik)
-        self.log_prior = np.where(accept, prop_prior, self.log_prior)
-        walk = ~independent
-        rate_rw = float(accept[walk].mean()) if walk.any() else 0.5 * (_ACCEPT_LOW + _ACCEPT_HIGH)
-        return float(accept.mean()), rate_rw, bad
+    def propagate(self, particles: ParticleSet, contact: bool, rng: np.random.Generator,
+                  scale: float = 1.0) -> ParticleSet:
+        """The particles moved one step."""
 
 
 class ParticleFilter:
     """Pose particle filter (Algorithm 3) on ``T_ee_object`` particles.
 
-    motion : MotionModel
-      Algorithm 4's motion model.
+    motion : Motion
+      Algorithm 4's motion model (the estimator's ``MotionModel``).
     resampling : str
       Registered resampling scheme name (``resampling.available_schemes()``).
     ess_threshold_fraction : float in [0, 1]
@@ -288,9 +60,8 @@ class ParticleFilter:
       2 particles (at most N / 2): default 1%, i.e. 5 of 500 particles, 2 of 100 (an ESS
       under 2 means one particle holds most of the weight).
     jump_sigmas : float
-      An estimate moving further from the predicted particles' mean than this many
-      RMS spreads of the predicted particles (the previous belief plus the motion
-      model's noise) raises ``estimate_jump``.
+      ``step`` raises ``estimate_jump`` for an estimate further from the previous belief
+      than this many RMS spreads of the predicted belief (``check_jump``).
     refine_iterations : int
       Default for ``step``: 0 runs ``update``, more runs ``refine`` with that many
       iterations.
@@ -314,7 +85,7 @@ class ParticleFilter:
 
     def __init__(
         self,
-        motion: MotionModel,
+        motion: Motion,
         resampling: str = "systematic",
         ess_threshold_fraction: float = 0.5,
         rng: np.random.Generator | None = None,
@@ -341,7 +112,7 @@ class ParticleFilter:
             raise ValueError(f"refine_iterations must be >= 0, got {refine_iterations!r}")
         if int(collapse_retry_iterations) < 0:
             raise ValueError(f"collapse_retry_iterations must be >= 0, got {collapse_retry_iterations!r}")
-        _check_shrink(refine_shrink)
+        check_shrink(refine_shrink)
         if floor_translation_m <= 0 or floor_rotation_rad <= 0:
             raise ValueError("floor_translation_m and floor_rotation_rad must be > 0")
         self.motion = motion
@@ -356,6 +127,12 @@ class ParticleFilter:
         self.floor_rotation_rad = float(floor_rotation_rad)
         self.refine_target_ess_fraction = float(refine_target_ess_fraction)
         self.collapse_retry_iterations = int(collapse_retry_iterations)
+        self.smc = TemperedRefinement(
+            resampling, rng, iterations=max(self.refine_iterations, 1), shrink=self.refine_shrink,
+            floor_translation_m=self.floor_translation_m, floor_rotation_rad=self.floor_rotation_rad,
+            target_ess_fraction=self.refine_target_ess_fraction, collapse_threshold=self.collapse_threshold,
+            collapse_retry_iterations=self.collapse_retry_iterations,
+        )
 
     # -- the loop ---------------------------------------------------------------------
 
@@ -371,17 +148,26 @@ class ParticleFilter:
         *,
         refine_iterations: int | None = None,
     ) -> StepResult:
-        """One frame of Algorithm 3: ``predict``, then ``update`` (``refine_iterations``
-        = 0) or ``refine`` (> 0; default ``self.refine_iterations``). ``particles`` are
-        the previous frame's result (or the initial particles ``X_init``)."""
+        """One frame of Algorithm 3: ``predict``, then ``assimilate`` the observation
+        (``refine_iterations``, default ``self.refine_iterations``), then the jump check
+        of the estimate against ``particles``, the previous frame's result (or the initial
+        particles ``X_init``)."""
         k = self.refine_iterations if refine_iterations is None else int(refine_iterations)
-        predicted = self.predict(particles, contact)
-        if k > 0:
-            result = self.refine(predicted, log_likelihood_fn, k)
-        else:
-            result = self.update(predicted, log_likelihood_fn)
-        result.diagnostics["contact"] = bool(contact)
+        result = self.assimilate(self.predict(particles, contact), log_likelihood_fn, k)
+        jump = self.check_jump(particles.spread(), result.estimate, contact)
+        d = result.diagnostics
+        d.update(contact=bool(contact), jump_translation_m=jump.translation_m, jump_rotation_rad=jump.rotation_rad,
+                 allowed_translation_m=jump.allowed_translation_m, allowed_rotation_rad=jump.allowed_rotation_rad)
+        if jump.jumped:
+            finish(d, list(result.flags) + ["estimate_jump"])
         return result
+
+    def assimilate(self, predicted: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int) -> StepResult:
+        """The frame's observation applied to the ``predicted`` particles: ``update``
+        (``iterations`` = 0) or ``refine`` with that many iterations."""
+        if iterations > 0:
+            return self.refine(predicted, log_likelihood_fn, iterations)
+        return self.update(predicted, log_likelihood_fn)
 
     def update(self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn) -> StepResult:
         """Algorithm 3 lines 5-9 on predicted particles: ``log w += log p(y | x)``
@@ -391,9 +177,8 @@ class ParticleFilter:
         If no particle has a finite, valid log-likelihood the observation is dropped:
         the predicted weights are kept and ``degenerate_weights`` is flagged.
         """
-        reference = particles.spread()
         prior_lw = particles.normalised_log_weights()
-        log_lik, n_invalid = _evaluate(log_likelihood_fn, particles.poses)
+        log_lik, n_invalid = evaluate(log_likelihood_fn, particles.poses)
         lw = prior_lw + log_lik
         flags: list[str] = []
         if np.isfinite(lw).any():
@@ -418,11 +203,10 @@ class ParticleFilter:
         }
         if "degenerate_weights" not in flags and ess < self.collapse_threshold(len(particles)):
             flags.append("ess_collapsed")
-        diagnostics.update(self._jump(reference, spread.mean, flags))
-        _finish(diagnostics, flags)
+        finish(diagnostics, flags)
         result = StepResult(out, spread.mean, spread, ess, resampled, log_evidence, diagnostics)
         if "ess_collapsed" in flags and self.collapse_retry_iterations > 0:
-            return self._redo_collapsed(particles, log_likelihood_fn, result, 0, None)
+            return self.smc.redo_collapsed(particles, log_likelihood_fn, result, 0, None)
         return result
 
     def refine(
@@ -432,168 +216,11 @@ class ParticleFilter:
         iterations: int | None = None,
         shrink: float | None = None,
     ) -> StepResult:
-        """Annealed update: the same posterior as ``update``, reached by a tempered SMC
-        sampler with Metropolis moves (Del Moral, Doucet & Jasra 2006) that moves the
-        particles into a likelihood peak far narrower than the prior.
-
-        ``particles`` must be the *predicted* particles of this frame (its prior), not
-        the result of ``update`` / ``refine`` with the same observation: ``refine`` uses
-        the frame's likelihood exactly once, so an updated set would count it twice.
-
-        Scheme. Let ``p^`` be the predicted particles smoothed by a Gaussian kernel
-        (Liu-West shrinkage keeps their mean and covariance; Silverman bandwidth; per-axis
-        floor ``floor_*``) and ``L`` this frame's likelihood. The sampler targets
-        ``pi_b ∝ p^ L^b`` for ``0 = b_0 < b_1 < ... < b_K = 1``:
-
-        1. draw N particles from ``p^`` (resample + kernel jitter), evaluate ``L``;
-        2. each iteration while ``b < 1``: choose the next ``b`` so that the reweighting
-           by ``L^(b_j - b_j-1)`` keeps ``refine_target_ess_fraction`` of the ESS
-           (adaptive tempering), but at least ``b_j = b_j-1^(1 - 1/m)`` with ``m``
-           iterations left, so that ``b`` reaches 1 within the budget (flag
-           ``tempering_forced`` when this bound is what set ``b``); reweight; resample;
-        3. every iteration ends with one Metropolis sweep leaving ``pi_b`` invariant: per
-           particle, at random, either a random walk ``N(xi, c^2 (C + F))`` in tangent
-           coordinates (``C`` the particle covariance, ``F`` the floor, ``c`` starting at
-           2.38 / sqrt(6) and multiplied by ``shrink`` when its acceptance rate drops
-           below 0.15, divided above 0.5) or an independent draw from
-           ``N(mean, 1.5 (C + F))``; accepted with the Metropolis-Hastings ratio of
-           ``p^ L^b``. Iterations left once ``b = 1`` are extra sweeps at the posterior.
-
-        Why this scheme: the tempering exponents add up to one, so the final particles
-        sample ``p^ L`` - the observation counts once, with no overconfidence from
-        reusing the same images (``tests/filter`` checks the spread against the
-        analytic Gaussian posterior). The accept/reject step makes the jitter a move
-        *within* the current target rather than added noise, so the posterior is not
-        widened either; the jitter scale follows the particle spread, which the
-        ESS-driven schedule shrinks roughly geometrically, down to the floor. Cost:
-        ``iterations + 1`` calls of ``log_likelihood_fn`` on N particles.
-
-        Limits: the tangent chart is centred on the predicted particles' mean (beliefs
-        must lie well within ±180° of it), and the likelihood must rise towards its peak
-        from where the prior puts particles: a peak much narrower than the prior with a
-        flat likelihood around it is found only by chance.
-        """
-        iterations = self.refine_iterations if iterations is None else int(iterations)
-        if iterations < 1:
-            raise ValueError(f"refine needs iterations >= 1, got {iterations!r}")
-        shrink = self.refine_shrink if shrink is None else float(shrink)
-        _check_shrink(shrink)
-        result = self._refine(particles, log_likelihood_fn, iterations, shrink)
-        if "ess_collapsed" in result.flags and self.collapse_retry_iterations > 0:
-            return self._redo_collapsed(particles, log_likelihood_fn, result, iterations, shrink)
-        return result
-
-    def _redo_collapsed(
-        self,
-        particles: ParticleSet,
-        log_likelihood_fn: LogLikelihoodFn,
-        collapsed: StepResult,
-        iterations: int,
-        shrink: float | None,
-    ) -> StepResult:
-        """Recovery from an ESS collapse: the frame again from the same predicted
-        ``particles`` by ``refine`` with more, hence smaller, tempering stages, each
-        followed by Metropolis moves (see ``collapse_retry_iterations``)."""
-        k = max(self.collapse_retry_iterations, 3 * iterations)
-        redo = self._refine(particles, log_likelihood_fn, k, self.refine_shrink if shrink is None else shrink)
-        d = redo.diagnostics
-        flags = [f for f in d["flags"] if f != "ess_collapsed"]
-        d["collapse_retry"] = {
-            "iterations": k,
-            "min_ess_before": collapsed.diagnostics["min_ess"],
-            "recovered": "ess_collapsed" not in d["flags"],
-        }
-        d["invalid_log_likelihood"] += collapsed.diagnostics["invalid_log_likelihood"]
-        d["likelihood_evaluations"] += collapsed.diagnostics["likelihood_evaluations"]
-        d["evaluated_poses"] += collapsed.diagnostics["evaluated_poses"]
-        _finish(d, ["ess_collapsed"] + flags)
-        return redo
-
-    def _refine(
-        self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int, shrink: float
-    ) -> StepResult:
-        """``refine`` without the collapse recovery."""
-        rng, n = self.rng, len(particles)
-        scheme = get_scheme(self.resampling)
-        floor_var = np.array([self.floor_translation_m] * 3 + [self.floor_rotation_rad] * 3) ** 2
-
-        reference = particles.spread()
-        chart = _Chart(reference.mean)
-        prior_lw = particles.normalised_log_weights()
-        prior = _KernelPrior(chart.to_tangent(particles.poses), prior_lw, floor_var)
-        state = _SamplerState(prior.sample(scheme(prior_lw, n, rng), rng))
-        state.log_lik, n_invalid = _evaluate(log_likelihood_fn, chart.from_tangent(state.xi))
-        flags: list[str] = []
-        diagnostics: dict = {"kernel_bandwidth2": float(prior.bandwidth2)}
-        if not np.isfinite(state.log_lik).any():
-            # Nothing to learn from this frame: keep the predicted particles as they were.
-            flags.append("degenerate_weights")
-            diagnostics.update(
-                invalid_log_likelihood=n_invalid,
-                likelihood_evaluations=1,
-                evaluated_poses=n,
-                min_ess=0.0,
-                ess_collapse_threshold=self.collapse_threshold(n),
-                betas=[],
-                stage_ess=[],
-                acceptance_rates=[],
-            )
-            diagnostics.update(self._jump(reference, reference.mean, flags))
-            _finish(diagnostics, flags)
-            return StepResult(particles, reference.mean, reference, particles.ess(), False, -np.inf, diagnostics)
-        state.log_prior = prior.log_density(state.xi)
-
-        uniform = np.full(n, -np.log(n))
-        beta, log_evidence, scale = 0.0, 0.0, _RW_SCALE
-        betas, stage_ess, acceptance = [], [], []
-        ess = float(n)
-        for it in range(iterations):
-            if beta < 1.0:
-                remaining = 1.0 - beta
-                delta = _next_increment(uniform, state.log_lik, remaining, self.refine_target_ess_fraction)
-                # Spread the degeneracy a short budget forces over the stages, with moves
-                # in between, rather than leaving it all to one final jump.
-                stages_left = iterations - it
-                needed = remaining if stages_left == 1 else beta ** (1.0 - 1.0 / stages_left) - beta
-                if needed > delta * (1.0 + 1e-9):
-                    delta = min(needed, remaining)
-                    flags.append("tempering_forced")
-                increment = np.where(np.isfinite(state.log_lik), delta * state.log_lik, -np.inf)
-                log_evidence += float(logsumexp(uniform + increment))
-                lw = normalise_log_weights(uniform + increment)
-                beta = 1.0 if delta >= remaining else beta + delta
-                ess = ess_from_log_weights(lw)
-                betas.append(beta)
-                stage_ess.append(ess)
-                state.select(scheme(lw, n, rng))
-            rate_all, rate_rw, bad = state.metropolis_sweep(
-                prior, chart, log_likelihood_fn, beta, scale, floor_var, rng
-            )
-            n_invalid += bad
-            acceptance.append(rate_all)
-            if rate_rw < _ACCEPT_LOW:
-                scale *= shrink
-            elif rate_rw > _ACCEPT_HIGH:
-                scale = min(scale / shrink, 2.0 * _RW_SCALE)
-
-        out = ParticleSet.uniform(chart.from_tangent(state.xi))
-        spread = out.spread()
-        if min(stage_ess, default=float(n)) < self.collapse_threshold(n):
-            flags.append("ess_collapsed")
-        diagnostics.update(
-            invalid_log_likelihood=n_invalid,
-            likelihood_evaluations=iterations + 1,
-            evaluated_poses=n * (iterations + 1),
-            min_ess=float(min(stage_ess, default=float(n))),
-            ess_collapse_threshold=self.collapse_threshold(n),
-            betas=betas,
-            stage_ess=stage_ess,
-            acceptance_rates=acceptance,
-            proposal_scale=float(scale),
-        )
-        diagnostics.update(self._jump(reference, spread.mean, flags))
-        _finish(diagnostics, flags)
-        return StepResult(out, spread.mean, spread, ess, True, log_evidence, diagnostics)
+        """Annealed update of the *predicted* ``particles`` with ``iterations`` (default
+        ``self.refine_iterations``) tempering stages and Metropolis sweeps: see
+        ``smc.TemperedRefinement``."""
+        return self.smc(particles, log_likelihood_fn, self.refine_iterations if iterations is None else iterations,
+                        shrink)
 
     # -- checks -----------------------------------------------------------------------
 
@@ -602,29 +229,9 @@ class ParticleFilter:
         * n``, at least 2, at most ``n / 2``."""
         return min(max(self.ess_collapse_fraction * n, 2.0), 0.5 * n)
 
-    def _jump(self, reference: Spread, estimate: np.ndarray, flags: list[str]) -> dict:
-        """Compare the estimate with the predicted particles' mean: the motion model (and
-        the previous belief) make moves beyond ``jump_sigmas`` RMS spreads implausible."""
-        jump_t = float(np.linalg.norm(estimate[:3, 3] - reference.mean[:3, 3]))
-        jump_r = float(se3.rotation_angle(reference.mean[:3, :3], estimate[:3, :3]))
-        allowed_t = self.jump_sigmas * max(reference.translation_rms_m, self.floor_translation_m)
-        allowed_r = self.jump_sigmas * max(reference.rotation_rms_rad, self.floor_rotation_rad)
-        if jump_t > allowed_t or jump_r > allowed_r:
-            flags.append("estimate_jump")
-        return {
-            "jump_translation_m": jump_t,
-            "jump_rotation_rad": jump_r,
-            "allowed_translation_m": allowed_t,
-            "allowed_rotation_rad": allowed_r,
-        }
-
-
-def _check_shrink(shrink: float) -> None:
-    if not 0.0 < shrink < 1.0:
-        raise ValueError(f"shrink must be in (0, 1), got {shrink!r}")
-
-
-def _finish(diagnostics: dict, flags: list[str]) -> None:
-    for name in ("degenerate_weights", "ess_collapsed", "estimate_jump", "tempering_forced"):
-        diagnostics[name] = name in flags
-    diagnostics["flags"] = list(dict.fromkeys(flags))
+    def check_jump(self, previous: Spread, estimate: np.ndarray, contact: bool) -> JumpCheck:
+        """The one jump check (``health.check_jump``): ``estimate`` (4, 4) against the
+        previous frame's belief ``previous`` and the motion noise of this contact state."""
+        sigma_t, sigma_r = self.motion.sigmas(bool(contact))
+        return check_jump(previous, estimate, sigma_t, sigma_r, self.jump_sigmas, self.floor_translation_m,
+                          self.floor_rotation_rad)

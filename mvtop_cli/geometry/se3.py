@@ -117,6 +117,20 @@ def perturb(T: np.ndarray, dt: np.ndarray, dw: np.ndarray) -> np.ndarray:
     return np.asarray(T, dtype=np.float64) @ make_pose(rotvec_to_matrix(dw), dt)
 
 
+def perturb_about_origin(T_parent_child: np.ndarray, dt_parent: np.ndarray, dw_parent: np.ndarray) -> np.ndarray:
+    """Left-perturb poses (..., 4, 4) about the child's own origin: the origin moves by
+    ``dt_parent`` (..., 3) [m] along the parent's axes and the child rotates by the rotation
+    vector ``dw_parent`` (..., 3) [rad], also in parent axes, about its origin (no lever arm)::
+
+        R' = Exp(dw) @ R        t' = t + dt
+
+    The convention of the in-hand motion model and the grasp prior (``T_ee_object``: ee axes),
+    and what ``pose_spread`` measures."""
+    T = np.asarray(T_parent_child, dtype=np.float64)
+    R = rotvec_to_matrix(dw_parent) @ T[..., :3, :3]
+    return make_pose(R, T[..., :3, 3] + np.asarray(dt_parent, dtype=np.float64))
+
+
 def rotation_angle(R_a: np.ndarray, R_b: np.ndarray | None = None) -> np.ndarray:
     """Geodesic angle [rad] of rotations (..., 3, 3), or between two sets of rotations."""
     R_a = np.asarray(R_a, dtype=np.float64)

@@ -27,8 +27,8 @@ from ..io.frames import FrameReader
 from ..io.mcap_reader import McapLog
 from ..render.roi import Roi
 from .estimate import log_topics, sensor_topics
-from .observe import TACTILE_DEPTH_THRESHOLD_M, Observer
-from .scene_model import OBJECT_ID, SceneModel
+from ..estimator.observation import Observer
+from ..estimator.scene import OBJECT_ID, SceneModel
 
 OBSERVED_BGR = (255, 120, 0)  # blue (paper figure 6: predicted mask)
 RENDERED_BGR = (0, 215, 255)  # yellow (rendered mask)
@@ -130,7 +130,7 @@ def render_masks(
                 tactile = name in frame.tactile
                 full = Roi.full(img.camera)
                 occ = [] if tactile else scene.occluders(img.T_world_sensor, lambda f: reader.tf.lookup(cfg.frames.world, f, img.stamp_ns))
-                kw = dict(mode="tactile", gel_distance_m=gel[name], penetration_threshold_m=TACTILE_DEPTH_THRESHOLD_M) if tactile else {}
+                kw = dict(mode="tactile", gel_distance_m=gel[name], penetration_threshold_m=cfg.masking.tactile_depth_threshold_m) if tactile else {}
 
                 def render(T_world_object):
                     if T_world_object is None:

@@ -7,7 +7,9 @@ import pytest
 from mvtop_cli.filter.health import (
     SensorConsistency, check_jump, count_warnings, jump_warning, step_warnings, warning_lines,
 )
-from mvtop_cli.filter.motion import MotionModel, init_from_prior, init_uniform_box, perturb_about_origin
+from mvtop_cli.estimator.motion import MotionModel
+from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
+from mvtop_cli.geometry.se3 import perturb_about_origin
 from mvtop_cli.filter.pf import ParticleFilter
 from mvtop_cli.geometry import se3
 

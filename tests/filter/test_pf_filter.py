@@ -5,7 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from mvtop_cli.filter.motion import MotionModel, init_from_prior, init_uniform_box, perturb_about_origin
+from mvtop_cli.estimator.motion import MotionModel
+from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
+from mvtop_cli.geometry.se3 import perturb_about_origin
 from mvtop_cli.filter.particles import ParticleSet
 from mvtop_cli.filter.pf import ParticleFilter, StepResult
 from mvtop_cli.geometry import se3
@@ -210,10 +212,16 @@ def test_ess_collapse_and_estimate_jump_are_flagged():
     pf = ParticleFilter(STILL, "systematic", 0.5, rng, jump_sigmas=1.0)
     # A likelihood that believes only the outermost particle: ESS ~ 1, mean ~3 sigma off.
     result = pf.update(prior, lambda T: 1e3 * x / 1e-4)
+    assert "ess_collapsed" in result.flags and "estimate_jump" not in result.flags  # update knows no previous frame
+    # step checks the estimate against the previous belief (the prior here, STILL adds no noise)
+    result = pf.step(prior, False, lambda T: 1e3 * x / 1e-4)
     assert {"ess_collapsed", "estimate_jump"} <= set(result.flags)
     assert result.diagnostics["jump_translation_m"] > result.diagnostics["allowed_translation_m"]
-    calm = ParticleFilter(STILL, "systematic", 0.5, rng).update(prior, lambda T: -0.5 * (x / 2e-4) ** 2)
+    jump = pf.check_jump(prior.spread(), result.estimate, False)
+    assert jump.jumped and jump.translation_m == result.diagnostics["jump_translation_m"]
+    calm = ParticleFilter(STILL, "systematic", 0.5, rng).step(prior, False, lambda T: -0.5 * (x / 2e-4) ** 2)
     assert calm.flags == ()
+    assert calm.diagnostics["jump_translation_m"] < calm.diagnostics["allowed_translation_m"]
 
 
 def test_step_uses_the_contact_sigmas():

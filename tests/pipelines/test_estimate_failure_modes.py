@@ -20,7 +20,7 @@ from mvtop_cli.io.frames import FrameReader
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
 from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
-from mvtop_cli.pipelines.scene_model import SceneModel
+from mvtop_cli.estimator.scene import SceneModel
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -38,8 +38,9 @@ def test_frames_with_a_missing_sensor_still_update(tmp_path):
     is still estimated, with the sensors it has."""
     from mvtop_cli.io.mcap_reader import McapLog
     from mvtop_cli.io.mcap_writer import LogWriter
-    from mvtop_cli.pipelines.estimate import Estimator, log_topics, sensor_topics
-    from mvtop_cli.pipelines.scene_model import SceneModel
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+    from mvtop_cli.estimator.scene import SceneModel
     from mvtop_cli.io.frames import FrameReader
 
     src = ROOT / "sample_logs" / "conn2.mcap"
@@ -67,8 +68,9 @@ def test_frames_with_a_missing_sensor_still_update(tmp_path):
 def _first_frame_estimator(cfg):
     from mvtop_cli.io.frames import FrameReader
     from mvtop_cli.io.mcap_reader import McapLog
-    from mvtop_cli.pipelines.estimate import Estimator, log_topics, sensor_topics
-    from mvtop_cli.pipelines.scene_model import SceneModel
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+    from mvtop_cli.estimator.scene import SceneModel
 
     with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
@@ -81,7 +83,7 @@ def test_a_sensor_with_weight_zero_is_switched_off():
     """``weight: 0`` removes a camera from eq. 2 (it used to fall back to the default share);
     the other sensors keep their default shares, and the likelihood is exactly their
     weighted IoU sum over the temperature."""
-    from mvtop_cli.filter.motion import init_uniform_box
+    from mvtop_cli.estimator.prior import init_uniform_box
 
     base = load_config(ROOT / "configs" / "conn2.yaml")
     base = replace(base, filter=replace(base.filter, num_particles=100))
@@ -94,10 +96,10 @@ def test_a_sensor_with_weight_zero_is_switched_off():
         est, result = _first_frame_estimator(cfg)
         assert not result.contact
         assert result.sensors == ("left", "right", "front", "side")
-        iou_t, iou_v = est.last_ious(poses)
+        iou_t, iou_v = est.last_likelihood.ious(poses)
         expected = (0.25 * iou_t.sum(axis=1) + front_weight * iou_v[:, 0] + 0.25 * iou_v[:, 1]) / tau
         assert np.ptp(iou_v[:, 0]) > 0.05  # the front camera's IoU does vary over these poses
-        np.testing.assert_allclose(est.last_log_likelihood(poses), expected, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(est.last_likelihood(poses), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_every_sensor_at_weight_zero_is_refused(tmp_path):

@@ -17,7 +17,8 @@ from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.io.frames import FrameReader, LogTopics, SensorTopics
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
-from mvtop_cli.pipelines.estimate import EstimateOptions, FrameEstimate, estimate
+from mvtop_cli.estimator import FrameEstimate
+from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
 
 ROOT = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_000_000_000

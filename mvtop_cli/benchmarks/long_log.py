@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import MvtopError
-from .checkpoint import progress as checkpoint_progress
+from ..pipelines.checkpoint import progress as checkpoint_progress
 
 _REFERENCE_FRAMES = 30  # the episode length whose total slip a long episode keeps
 _POLL_S = 0.5
@@ -60,7 +60,7 @@ def _episode_options(frames: int):
 
 
 def _simulate_options(frames: int):
-    from .simulate import SimulateOptions
+    from ..pipelines.simulate import SimulateOptions
 
     return SimulateOptions(episode=_episode_options(frames), image_format="raw", tactile_format="raw", compression="none")
 
@@ -69,7 +69,7 @@ def _write_config(object_name: str, path: Path) -> None:
     """The scene config of ``object_name`` reading the raw (uncompressed) image topics."""
     import yaml
 
-    from .simulate import export_scene_meshes, scene_config
+    from ..pipelines.simulate import export_scene_meshes, scene_config
 
     cfg = scene_config(object_name)
     for group in ("cameras", "tactile"):
@@ -82,7 +82,7 @@ def _write_config(object_name: str, path: Path) -> None:
 def make_long_log(folder: Path, options: LongLogOptions, progress: Callable[[int, int], None] | None = None) -> dict:
     """Simulate the long log into ``folder`` (log.mcap, config.yaml, meshes/); reuses a log
     made there before with the same object, seed and size. Returns its description."""
-    from .simulate import simulate
+    from ..pipelines.simulate import simulate
 
     log, cfg, meta_path = folder / "log.mcap", folder / "config.yaml", folder / "log.json"
     want = {"object": options.object_name, "seed": options.seed, "size_gb": options.size_gb}

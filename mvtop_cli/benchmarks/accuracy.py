@@ -91,9 +91,9 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..sim.episode import EpisodeOptions
-    from .estimate import EstimateOptions, estimate
-    from .evaluate import evaluate
-    from .simulate import SimulateOptions, simulate, write_scene_config
+    from ..pipelines.estimate import EstimateOptions, estimate
+    from ..pipelines.evaluate import evaluate
+    from ..pipelines.simulate import SimulateOptions, simulate, write_scene_config
 
     run = Path(run_dir)
     scene = run.parent.parent / "scenes" / f"{obj}_{seed}"
@@ -113,8 +113,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     if method in MODALITY_SETS:
         estimate(log, cfg, run, EstimateOptions(modalities=MODALITY_SETS[method], num_particles=particles, seed=seed))
     else:  # the baseline
-        from ..baselines.chsel_runner import ChselOptions
-        from ..baselines.run import BaselineOptions, estimate_chsel
+        from .baselines.chsel_runner import ChselOptions
+        from .baselines.run import BaselineOptions, estimate_chsel
 
         summary = estimate_chsel(log, cfg, run, BaselineOptions(chsel=ChselOptions(threads=threads), seed=seed))
         extra = {k: summary["baseline"][k] for k in ("points_seconds", "registration_seconds", "registration_cpu_seconds")}
@@ -130,14 +130,14 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
 def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[int, int], None] | None = None) -> dict:
     """Run (or resume) the benchmark into ``out_dir``; returns the summary (also written as
     summary.json and summary.md)."""
-    from .evaluate import aggregate
+    from ..pipelines.evaluate import aggregate
 
     out_dir = Path(out_dir)
     unknown = [m for m in options.methods if m not in METHODS]
     if unknown:
         raise MvtopError(f"methods: unknown {', '.join(unknown)} (expected {', '.join(METHODS)})")
     if any(m in BASELINES for m in options.methods):
-        from ..baselines.chsel_runner import require
+        from .baselines.chsel_runner import require
 
         require()  # a missing extra stops here, before any run, with the pip command
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from mvtop_cli.baselines.points import (
+from mvtop_cli.benchmarks.baselines.points import (
     FREE,
     SURFACE,
     LabelledPoints,
@@ -20,7 +20,7 @@ from mvtop_cli.baselines.points import (
 from mvtop_cli.geometry import se3
 from mvtop_cli.geometry.camera import PinholeCamera
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def sphere_depth(camera: PinholeCamera, centre: np.ndarray, radius: float) -> np.ndarray:
@@ -121,7 +121,7 @@ def test_downsampling_keeps_one_mean_point_per_label_and_voxel():
 
 @pytest.mark.slow
 def test_points_of_a_sample_log_agree_with_the_ground_truth():
-    from mvtop_cli.baselines.observations import PointOptions, log_points
+    from mvtop_cli.benchmarks.baselines.observations import PointOptions, log_points
     from mvtop_cli.config import load_config
 
     cfg = load_config(ROOT / "configs" / "conn2.yaml")
@@ -139,8 +139,8 @@ def test_points_of_a_sample_log_agree_with_the_ground_truth():
 
 
 def test_missing_extra_stops_the_benchmark_before_any_run_with_the_pip_command(tmp_path, monkeypatch):
-    from mvtop_cli.baselines.chsel_runner import BaselineUnavailable, available
-    from mvtop_cli.pipelines.benchmark_accuracy import AccuracyOptions, run_accuracy
+    from mvtop_cli.benchmarks.baselines.chsel_runner import BaselineUnavailable, available
+    from mvtop_cli.benchmarks.accuracy import AccuracyOptions, run_accuracy
 
     monkeypatch.setitem(__import__("sys").modules, "chsel", None)  # as if chsel were not installed
     assert not available()

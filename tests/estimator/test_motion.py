@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from mvtop_cli.filter.motion import MotionModel, init_from_prior, init_uniform_box, perturb_about_origin
+from mvtop_cli.estimator.motion import MotionModel
+from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
+from mvtop_cli.geometry.se3 import perturb_about_origin
 from mvtop_cli.filter.particles import ParticleSet
 from mvtop_cli.geometry import se3
 

@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config
-from ..io.meshes import load_mesh
-from ..pipelines.estimate import FrameEstimate, _summary, write_track
+from ...config import Config
+from ...io.meshes import load_mesh
+from ...estimator import FrameEstimate
+from ...pipelines.track import run_summary, write_track
 from . import chsel_runner
 from .observations import LogPoints, PointOptions, log_points, prior_samples
 
@@ -52,7 +53,7 @@ def estimate_chsel(log_path: Path, cfg: Config, out_dir: Path, options: Baseline
         particles_world=pts.T_world_ee @ reg.solutions[np.argsort(reg.costs, kind="stable")],
         T_world_object_gt=pts.T_world_object_gt,
     )
-    summary = _summary([result], cfg, log_path, elapsed, [])
+    summary = run_summary([result], cfg, log_path, elapsed, [])
     summary["method"] = METHOD
     summary["frames_processed"] = pts.frames_used
     summary["time_per_frame_s"] = round(elapsed / max(pts.frames_used, 1), 4)

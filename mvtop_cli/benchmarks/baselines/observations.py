@@ -20,19 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config
-from ..errors import EstimationError
-from ..filter.motion import init_from_prior, init_uniform_box
-from ..geometry import se3
-from ..io.frames import FrameReader
-from ..io.mcap_reader import McapLog
-from ..masking.belief import belief_probability, grabcut_from_belief
-from ..masking.selection import select_masks
-from ..pipelines.estimate import log_topics, roi_image, sensor_topics
-from ..pipelines.observe import TACTILE_DEPTH_THRESHOLD_M, Observer
-from ..pipelines.scene_model import OBJECT_ID, SceneModel
-from ..records import Frame
-from ..render.roi import roi_for_particles
+from ...config import Config
+from ...errors import EstimationError
+from ...geometry import se3
+from ...io.frames import FrameReader
+from ...io.mcap_reader import McapLog
+from ...estimator.observation import ObservationModel
+from ...estimator.prior import GraspPriorModel
+from ...estimator.scene import SceneModel
+from ...pipelines.estimate import log_topics, sensor_topics
+from ...records import Frame
 from .points import LabelledPoints, camera_free_points, environment_free_points, tactile_points
 
 _CANDIDATES = 96  # prior poses rendered for the camera mask selection (as the estimator's)
@@ -94,10 +91,7 @@ def object_region(cfg: Config, scene: SceneModel) -> tuple[np.ndarray, float]:
 
 def prior_samples(cfg: Config, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 4, 4) ``T_ee_object`` drawn from the config's grasp prior."""
-    g = cfg.grasp_prior
-    T_nom = g.pose.matrix()
-    draw = init_uniform_box if g.distribution == "uniform" else init_from_prior
-    return draw(T_nom, g.translation_m, np.radians(g.rotation_deg), n, rng).poses
+    return GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(n, rng).poses
 
 
 class FramePoints:
@@ -108,7 +102,7 @@ class FramePoints:
         self.scene = scene
         self.frame_pose = frame_pose
         self.options = options
-        self.observer = Observer(cfg)
+        self.observations = ObservationModel(cfg, scene, frame_pose)
         self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
         self.centre_ee, self.radius = object_region(cfg, scene)
         self.candidates = prior_samples(cfg, _CANDIDATES, np.random.default_rng(options.seed))
@@ -116,14 +110,15 @@ class FramePoints:
     def __call__(self, frame: Frame) -> LabelledPoints:
         o = self.options
         T_ee_world = se3.invert(frame.T_world_ee)
+        threshold = self.cfg.masking.tactile_depth_threshold_m
         parts = []
         for name, img in frame.tactile.items():
             gel = self.tactile_cfg[name].gel_distance_m
             if img.depth is not None:
                 ind = np.asarray(img.depth, dtype=np.float64)
             else:  # a contact mask only: the object's surface is taken on the undeformed gel plane
-                ind = np.where(self.observer.tactile_mask(img), 2 * TACTILE_DEPTH_THRESHOLD_M, 0.0)
-            pts = tactile_points(ind, img.camera, gel, contact_threshold_m=TACTILE_DEPTH_THRESHOLD_M, stride_px=o.stride_px)
+                ind = np.where(self.observations.observer.tactile_mask(img), 2 * threshold, 0.0)
+            pts = tactile_points(ind, img.camera, gel, contact_threshold_m=threshold, stride_px=o.stride_px)
             parts.append(pts.transformed(T_ee_world @ img.T_world_sensor))
         for name, img in frame.cameras.items():
             parts.append(self._camera_points(frame, name).transformed(T_ee_world @ img.T_world_sensor))
@@ -138,20 +133,14 @@ class FramePoints:
         """Free points carved by one camera, in its optical frame."""
         img = frame.cameras[name]
         T_sensor_world = se3.invert(img.T_world_sensor)
-        T = T_sensor_world @ frame.T_world_ee @ self.candidates
-        roi = roi_for_particles(self.scene.renderer.mesh(OBJECT_ID), T, img.camera, "silhouette",
-                                max_side=self.cfg.filter.roi_size_px)
-        occluders = self.scene.occluders(img.T_world_sensor, lambda fr: self.frame_pose(fr, img.stamp_ns))
-        rendered = self.scene.renderer.render_masks(OBJECT_ID, T, img.camera, roi, occluders)
-        box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
-        props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
-        weights = np.full(len(T), 1.0 / len(T))
-        belief = grabcut_from_belief(roi_image(img.image, roi), belief_probability(rendered, weights),
-                                     seed=self.options.seed)
-        proposals = ([belief] if belief is not None else []) + props
-        mask = select_masks({name: proposals}, {name: rendered}, {name: 1.0}).masks.get(name)
+        rois = self.observations.rois(frame, self.candidates, [name])
+        occluders = {name: self.observations.occluders(img)}
+        weights = np.full(len(self.candidates), 1.0 / len(self.candidates))
+        mask = self.observations.camera_masks(frame, {name: img}, rois, occluders, self.candidates, weights,
+                                              self.options.seed).get(name)
         if mask is None:  # no object seen: nothing can be carved safely
             return LabelledPoints.empty()
+        roi, occluders = rois[name], occluders[name]
         depth = np.full(roi.shape, np.inf)
         for mesh_id, T_sensor_mesh in occluders:
             depth = np.minimum(depth, self.scene.renderer.render_depth(mesh_id, T_sensor_mesh, img.camera, roi)[0])

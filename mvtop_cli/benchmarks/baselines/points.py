@@ -24,8 +24,8 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from ..geometry import se3
-from ..geometry.camera import PinholeCamera
+from ...geometry import se3
+from ...geometry.camera import PinholeCamera
 
 SURFACE = 0  # chsel.SemanticsClass.SURFACE
 FREE = 1  # chsel.SemanticsClass.FREE

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import MvtopError
-from ..geometry import se3
+from ...errors import MvtopError
+from ...geometry import se3
 from .points import FREE, SURFACE, LabelledPoints
 
 INSTALL_HINT = "pip install -e '.[baseline]' in the mvtop checkout (or: pip install torch==2.13.0 chsel==0.2.1)"

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from mvtop_cli.baselines.points import FREE, SURFACE, LabelledPoints
+from mvtop_cli.benchmarks.baselines.points import FREE, SURFACE, LabelledPoints
 from mvtop_cli.geometry import se3
 
-chsel_runner = pytest.importorskip("mvtop_cli.baselines.chsel_runner")
+chsel_runner = pytest.importorskip("mvtop_cli.benchmarks.baselines.chsel_runner")
 if not chsel_runner.available():
     pytest.skip("the CHSEL baseline extra (torch, chsel) is not installed", allow_module_level=True)
 

@@ -1,0 +1,257 @@
+"""The M-VTOP likelihood of one frame: ``Likelihood`` maps object poses ``T_ee_object
+(N, 4, 4)`` to log-likelihoods ``(N,)`` (eq. 6 in log space), the visuo-tactile score of
+eq. 1-2 over the frame's observed masks plus the contact log-likelihood of eq. 8-9.
+
+Score. Each sensor's observed mask (``observation.Observation``) is compared with the mask
+rendered at the pose, in the sensor's ROI (IoU: ``render.base.score_masks``); eq. 2 sums the
+IoUs weighted by ``gamma`` (tactile) and ``nu`` (cameras), and the log-likelihood is that sum
+over the temperature ``tau`` of eq. 1. Eq. 1's softmax normalisation over the particles is
+left out: it is a constant within one batch, but poses scored in different calls are compared
+(Metropolis ratios, search elites), so every call must score on the same scale.
+
+Contact. When the frame reports contact and the scene has a contact model, eq. 9's
+``log sigma((tau_c - phi) / sigma_d)`` of the signed distance ``phi`` between the object at
+the pose and the fixed environment (eq. 8) is added (``contact.likelihood``).
+
+Missing sensors. A sensor whose IoU column is NaN for every particle is absent from
+this frame (no image, or no usable observed mask). Its importance weight is dropped and
+the weights of the sensors present are rescaled to sum to one, as eq. 2 requires
+(``sum gamma + sum nu = 1``), so the score keeps the range [0, 1] and the temperature
+keeps its meaning whatever the number of sensors. Default weights follow the paper
+(``gamma_i = 1/N_T``, ``nu_j = 1/N_V``: modalities weighted equally), with ``N_T`` and
+``N_V`` counting the sensors present in the frame; given weights keep their ratios. A
+frame without any sensor carries no information: every particle gets ``-log N``.
+
+With ``renormalise=False`` the given weights are used as they are, absent sensors simply
+dropped: each sensor then contributes the same ``gamma_i IoU_i / tau`` to the
+log-likelihood whichever other sensors are present, as independent sensors' log-likelihoods
+add. ``Likelihood`` scores this way, so a frame that holds only tactile images (sensors at
+different rates) counts as the tactile part of a full frame rather than as a whole frame
+of evidence about what touch alone cannot see.
+
+A NaN for only some particles in a column (IoU undefined for those renders) scores that
+term as 0, the worst possible IoU, so such particles are never favoured.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..config import Config
+from ..contact.likelihood import log_contact_likelihood
+from ..filter.result import valid_log_likelihood
+from ..records import Frame
+from .observation import Observation
+from .scene import OBJECT_ID, SceneModel
+
+
+def _iou_table(iou: np.ndarray | None, n: int | None, name: str) -> np.ndarray | None:
+    if iou is None:
+        return None
+    a = np.asarray(iou, dtype=np.float64)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must have shape (N, n_sensors), got {a.shape}")
+    if n is not None and a.shape[0] != n:
+        raise ValueError(f"{name} has {a.shape[0]} rows, expected {n} (one per particle)")
+    if np.isinf(a).any():
+        raise ValueError(f"{name} contains infinite IoU values")
+    return a
+
+
+def _importance(given: np.ndarray | None, present: np.ndarray, name: str) -> np.ndarray:
+    """Per-sensor weights (n_sensors,) before the joint renormalisation; 0 for absent sensors."""
+    k = len(present)
+    if given is None:
+        n_present = int(present.sum())
+        return np.where(present, 1.0 / max(n_present, 1), 0.0)
+    g = np.asarray(given, dtype=np.float64)
+    if g.shape != (k,):
+        raise ValueError(f"{name} must have shape ({k},), got {g.shape}")
+    if not np.all(np.isfinite(g)) or np.any(g < 0):
+        raise ValueError(f"{name} must be finite and >= 0, got {g}")
+    return np.where(present, g, 0.0)
+
+
+def sensor_weights(
+    present_tactile: np.ndarray,
+    present_vision: np.ndarray,
+    gamma: np.ndarray | None = None,
+    nu: np.ndarray | None = None,
+    renormalise: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Importance weights ``(gamma (N_T,), nu (N_V,))`` actually used in eq. 2 for one frame.
+
+    present_tactile, present_vision : (N_T,) / (N_V,) bool
+      Which sensors have an observation in this frame.
+    Absent sensors get 0; the others keep the given ratios (defaults 1/N_T and 1/N_V over
+    the present sensors) and, with ``renormalise``, are rescaled to sum to one together
+    (without it, given weights are kept as they are). All zeros when no present sensor has
+    a positive weight.
+    """
+    pt = np.asarray(present_tactile, dtype=bool)
+    pv = np.asarray(present_vision, dtype=bool)
+    g = _importance(gamma, pt, "gamma")
+    v = _importance(nu, pv, "nu")
+    if not renormalise:
+        return g, v
+    total = g.sum() + v.sum()
+    if total <= 0:
+        return np.zeros_like(g), np.zeros_like(v)
+    return g / total, v / total
+
+
+def visuo_tactile_score(
+    iou_tactile: np.ndarray | None,
+    iou_vision: np.ndarray | None,
+    gamma: np.ndarray | None = None,
+    nu: np.ndarray | None = None,
+    renormalise: bool = True,
+) -> np.ndarray:
+    """The matching score ``s~_n`` of eq. 2 for every particle, (N,) in [0, 1]: the
+    importance-weighted sum of the IoUs.
+
+    iou_tactile, iou_vision : (N, N_T) / (N, N_V) float or None
+      IoU between each observed mask and the mask rendered for particle ``n``; a column of
+      NaN marks a sensor missing in this frame. None: no sensor of that modality.
+    gamma, nu : (N_T,) / (N_V,) float or None
+      Sensor importance weights (>= 0); None for the paper's defaults (see the module
+      docstring; ``renormalise`` as for ``sensor_weights``).
+
+    Unlike eq. 1's softmax, ``s~ / tau`` does not depend on which other particles are
+    scored with it, so it is the log-likelihood to use when poses scored in different
+    calls are compared (Metropolis moves, searches keeping earlier candidates): eq. 1's
+    normalisation over the batch would add a batch-dependent constant."""
+    tac = _iou_table(iou_tactile, None, "iou_tactile")
+    n = None if tac is None else tac.shape[0]
+    vis = _iou_table(iou_vision, n, "iou_vision")
+    if vis is not None:
+        n = vis.shape[0]
+    if n is None:
+        raise ValueError("at least one of iou_tactile and iou_vision must be given")
+    if tac is None:
+        tac = np.zeros((n, 0))
+    if vis is None:
+        vis = np.zeros((n, 0))
+    g, v = sensor_weights(
+        ~np.all(np.isnan(tac), axis=0), ~np.all(np.isnan(vis), axis=0), gamma, nu, renormalise
+    )
+    # eq. 2; isolated NaNs (and absent sensors, whose weight is 0) contribute nothing.
+    return np.nan_to_num(tac, nan=0.0) @ g + np.nan_to_num(vis, nan=0.0) @ v
+
+
+def eq2_weights(configured: list[float | None], share: float) -> np.ndarray:
+    """Eq. 1-2 weights (n,) of one modality's sensors present in a frame: a sensor's
+    configured ``weight`` where set (0 switches the sensor off), else an equal part of the
+    modality's ``share`` (1/N_T or 1/N_V of it)."""
+    default = share / len(configured) if configured else 0.0
+    return np.array([default if w is None else float(w) for w in configured], dtype=float)
+
+
+def scaled_weights(names: list[str], weights: np.ndarray, factor: Callable[[str], float]) -> np.ndarray:
+    """Eq. 1-2 weights (n,) of one modality's sensors ``names`` with the consistency watch's
+    ``factor(name)`` applied (``filter.health.SensorConsistency``); while a sensor of the
+    modality keeps its full weight, the modality's share is kept (the others take up what a
+    scaled-down sensor loses, as if it were absent)."""
+    factors = np.array([factor(n) for n in names])
+    if not np.any(factors != 1.0):
+        return weights
+    scaled = weights * factors
+    full = factors == 1.0
+    if np.any(full) and scaled.sum() > 0:
+        scaled[full] *= (weights.sum() - scaled[~full].sum()) / scaled[full].sum()
+    return scaled
+
+
+def configured_weights(cfg: Config, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 2 weights (gamma, nu) of the observed sensors before the consistency watch: a
+    sensor's ``weight``, or an equal part of its modality's share (``sensors.tactile_share``
+    when cameras and touch are both enabled, else all of it). Each modality keeps its share on
+    frames where the other has no image (sensors at different rates): rescaling touch to the
+    whole score on tactile-only frames let the pads pull the rotations they cannot place."""
+    both = ("vision" in cfg.modalities and bool(cfg.sensors.cameras)
+            and "tactile" in cfg.modalities and bool(cfg.sensors.tactile))
+    share = cfg.sensors.tactile_share
+    t_share, v_share = (share, 1.0 - share) if both else (1.0, 1.0)
+    tactile = {t.name: t.weight for t in cfg.sensors.tactile}
+    cameras = {c.name: c.weight for c in cfg.sensors.cameras}
+    return (eq2_weights([tactile[n] for n in observation.tactile], t_share),
+            eq2_weights([cameras[n] for n in observation.cameras], v_share))
+
+
+class Likelihood:
+    """``log p(y_k | T_ee_object)`` of one frame (eq. 6 in log space): eq. 2's weighted IoU
+    sum over the temperature (eq. 1, unnormalised), plus eq. 9's contact term.
+
+    frame, observation : the frame and its ``Observation`` (ROIs, occluders, observed masks).
+    contact : the frame's contact state (None or False: no contact term).
+    weight_factor : the consistency watch's factor per sensor name (see ``scaled_weights``).
+
+    Eq. 2's weights: each sensor's configured ``weight``, or an equal part of its modality's
+    share (``configured_weights``), times ``weight_factor``.
+
+    Calling it scores poses (N, 4, 4) -> (N,), NaN / +inf made -inf (``filter.result``),
+    and counts every pose scored and every invalid value (``evaluated``, ``invalid``): the
+    frame's searches and refinement all go through it.
+    """
+
+    def __init__(self, cfg: Config, scene: SceneModel, frame: Frame, observation: Observation, contact: bool | None,
+                 weight_factor: Callable[[str], float] = lambda name: 1.0):
+        self.cfg = cfg
+        self.scene = scene
+        self.frame = frame
+        self.observation = observation
+        self.base_gamma, self.base_nu = configured_weights(cfg, observation)
+        self.gamma = scaled_weights(observation.tactile, self.base_gamma, weight_factor)
+        self.nu = scaled_weights(observation.cameras, self.base_nu, weight_factor)
+        self.contact = bool(contact) and scene.has_contact_model
+        self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
+        self.evaluated = 0
+        self.invalid = 0
+
+    def informative(self, ious: dict[str, float]) -> dict[str, bool]:
+        """Per observed sensor, whether its IoUs at a pose (``sensor_ious``) say anything: not
+        switched off by a configured weight of 0, and not both masks empty (a tactile sensor
+        out of contact agrees trivially). The consistency watch judges only these."""
+        obs = self.observation
+        weights = np.concatenate([self.base_gamma, self.base_nu])
+        return {n: bool(w > 0 and (obs.masks[n].any() or obs.outside[n] > 0 or ious[n] < 1.0))
+                for n, w in zip(obs.sensors, weights)}
+
+    def ious(self, T_ee_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """IoU of every observed mask with the mask rendered at each pose (N, 4, 4):
+        (N, N_T) tactile and (N, N_V) camera tables, in ``observation``'s sensor order."""
+        obs, frame, renderer = self.observation, self.frame, self.scene.renderer
+        iou_t = np.empty((len(T_ee_object), len(obs.tactile)))
+        iou_v = np.empty((len(T_ee_object), len(obs.cameras)))
+        for j, n in enumerate(obs.tactile):
+            iou_t[:, j] = renderer.score_masks(
+                OBJECT_ID, frame.T_sensor_object(n, T_ee_object), frame.tactile[n].camera, obs.rois[n], obs.masks[n],
+                mode="tactile", gel_distance_m=self.gel_distance_m[n],
+                penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m, observed_outside=obs.outside[n],
+            )
+        for j, n in enumerate(obs.cameras):
+            iou_v[:, j] = renderer.score_masks(
+                OBJECT_ID, frame.T_sensor_object(n, T_ee_object), frame.cameras[n].camera, obs.rois[n], obs.masks[n],
+                obs.occluders[n], observed_outside=obs.outside[n],
+            )
+        return iou_t, iou_v
+
+    def sensor_ious(self, T_ee_object: np.ndarray) -> dict[str, float]:
+        """Per observed sensor, the IoU of its mask with the mask rendered at one pose (4, 4)."""
+        iou_t, iou_v = self.ious(T_ee_object[None])
+        return {n: float(v) for n, v in zip(self.observation.sensors, np.concatenate([iou_t[0], iou_v[0]]))}
+
+    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
+        iou_t, iou_v = self.ious(T_ee_object)
+        score = visuo_tactile_score(iou_t, iou_v, self.gamma if len(self.gamma) else None,
+                                    self.nu if len(self.nu) else None, renormalise=False) / self.cfg.filter.temperature
+        if self.contact:
+            phi = self.scene.phi(self.frame.T_world_ee @ T_ee_object)
+            score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
+        score, invalid = valid_log_likelihood(score)
+        self.invalid += invalid
+        self.evaluated += len(score)
+        return score

@@ -1,0 +1,238 @@
+"""What a frame shows the estimator: observed object masks from its images, with the
+masking backends the config names, in each sensor's region of interest.
+
+``Observer`` runs the backends on one image. ``ObservationModel.observe`` makes one frame's
+``Observation`` for the likelihood: the ROI window of every sensor around the predicted belief,
+the environment meshes that occlude each camera, and the observed masks (Algorithm 1-2 for the
+cameras, choosing among the backend's proposals with the belief's best particles).
+
+Cameras use ``masking.camera`` (``classical`` by default, or ``sam_onnx`` / ``instance_onnx``):
+zero-shot proposals for Algorithm 1-2 and the promptable mode. Tactile sensors use the
+indentation depth topic when the log has one (undeformed pixels removed before binarising),
+else ``masking.tactile`` (``difference``: the change from a no-contact reference frame, given
+as ``options.reference_image`` or taken as the first tactile image of the log).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import BackendConfig, Config
+from ..errors import ConfigError
+from ..filter.particles import ParticleSet
+from ..masking.base import MaskContext, get_backend
+from ..masking.belief import belief_probability, grabcut_from_belief
+from ..masking.selection import select_masks
+from ..records import Frame, SensorImage
+from ..render.roi import Roi, roi_for_particles
+from .scene import OBJECT_ID, SceneModel
+
+def _resolve_paths(options: dict[str, Any], base: Path | None) -> dict[str, Any]:
+    """Option values of keys ending in ``_path`` resolved against the config's folder."""
+    out = dict(options)
+    for key, value in options.items():
+        if key.endswith("_path") and isinstance(value, str) and base is not None and not Path(value).is_absolute():
+            out[key] = str((base / value).resolve())
+    return out
+
+
+def make_backend(spec: BackendConfig, cfg: Config, key: str, drop: tuple[str, ...] = ()):
+    """The backend ``spec`` names, with its options (paths relative to the config file)."""
+    base = cfg.source.resolve().parent if cfg.source is not None else None
+    options = {k: v for k, v in _resolve_paths(spec.options, base).items() if k not in drop}
+    try:
+        return get_backend(spec.backend, **options)
+    except ConfigError as err:
+        where = f"{cfg.source}: " if cfg.source is not None else ""
+        raise ConfigError(f"{where}{key}: {err}") from None
+
+
+class Observer:
+    """Makes the observed masks of one log's frames."""
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        self.camera = make_backend(cfg.masking.camera, cfg, "masking.camera")
+        self._tactile_spec = cfg.masking.tactile
+        self._tactile = None
+        self._references: dict[str, np.ndarray] = {}
+        ref = cfg.masking.tactile.options.get("reference_image")
+        self._reference_file = None
+        if ref is not None:
+            base = cfg.source.resolve().parent if cfg.source is not None else Path.cwd()
+            self._reference_file = (base / ref) if not Path(ref).is_absolute() else Path(ref)
+
+    def camera_proposals(self, img: SensorImage, roi_box: tuple[int, int, int, int]) -> list[np.ndarray]:
+        """Zero-shot proposals (full-image bool masks) inside ``roi_box``; none when the box
+        leaves under 2 x 2 pixels of the image (a belief at the image edge: the other
+        proposals and sensors carry the frame)."""
+        H, W = img.image.shape[:2]
+        if min(roi_box[2], W) - max(roi_box[0], 0) < 2 or min(roi_box[3], H) - max(roi_box[1], 0) < 2:
+            return []
+        return list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box)))
+
+    def camera_prompt(self, img: SensorImage, prompt_mask: np.ndarray) -> np.ndarray:
+        """The object mask prompted by the CAD silhouette at the current estimate."""
+        return np.asarray(self.camera.prompt(img.image, prompt_mask), dtype=bool)
+
+    def tactile_mask(self, img: SensorImage) -> np.ndarray:
+        """The contact region (full-image bool mask) of one tactile image: the indentation
+        depth above ``masking.tactile_depth_threshold_m`` when the log has it, else the
+        tactile backend's mask."""
+        if img.depth is not None:
+            return np.asarray(img.depth) > self.cfg.masking.tactile_depth_threshold_m
+        if self._tactile is None:
+            self._tactile = make_backend(self._tactile_spec, self.cfg, "masking.tactile", drop=("reference_image",))
+        ref = self._reference(img)
+        return np.asarray(self._tactile.contact_mask(img.image, MaskContext(background=ref)), dtype=bool)
+
+    def _reference(self, img: SensorImage) -> np.ndarray:
+        if img.sensor not in self._references:
+            if self._reference_file is not None:
+                import cv2
+
+                ref = cv2.imread(str(self._reference_file), cv2.IMREAD_COLOR)
+                if ref is None:
+                    raise ConfigError(f"{self._reference_file}: cannot read the tactile reference image "
+                                      "(masking.tactile.options.reference_image)")
+                ref = ref[:, :, ::-1]
+            else:
+                ref = img.image  # the first image of the sensor: the log starts before contact
+            if ref.shape != img.image.shape:
+                raise ConfigError(f"masking.tactile.options.reference_image: size {ref.shape[:2]} differs from "
+                                  f"the {img.sensor!r} images {img.image.shape[:2]}")
+            self._references[img.sensor] = np.ascontiguousarray(ref)
+        return self._references[img.sensor]
+
+
+@dataclass
+class Observation:
+    """One frame's evidence, per sensor name: the ROI window (fixed for the frame), the
+    occluders ``(mesh_id, T_sensor_mesh)`` of each camera, the observed mask cropped to the
+    ROI (``masks``) and the observed mask area outside the ROI in ROI pixels (``outside``).
+    ``tactile`` and ``cameras`` name the sensors with an observed mask, in the frame's
+    order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt`` or
+    ``none`` without cameras)."""
+
+    rois: dict[str, Roi]
+    occluders: dict[str, list]
+    masks: dict[str, np.ndarray]
+    outside: dict[str, float]
+    tactile: list[str]
+    cameras: list[str]
+    mask_mode: str
+
+    @property
+    def sensors(self) -> list[str]:
+        """Every sensor with an observed mask: tactile first, then cameras (eq. 2's order)."""
+        return self.tactile + self.cameras
+
+
+class ObservationModel:
+    """Makes each frame's ``Observation`` for the estimator (and the camera masks for the
+    baseline). ``frame_pose(frame_name, stamp_ns)`` returns ``T_world_frame`` of a TF frame
+    (gripper-mounted occluders)."""
+
+    def __init__(self, cfg: Config, scene: SceneModel, frame_pose):
+        self.cfg = cfg
+        self.scene = scene
+        self.frame_pose = frame_pose
+        self.observer = Observer(cfg)
+        self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
+
+    def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None) -> dict[str, Roi]:
+        """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
+        every pose of ``T_ee_object`` (N, 4, 4): its silhouette for cameras, its gel contact
+        for tactile."""
+        out = {}
+        for name in sensors if sensors is not None else {**frame.cameras, **frame.tactile}:
+            tactile = name in frame.tactile
+            out[name] = roi_for_particles(
+                self.scene.renderer.mesh(OBJECT_ID), frame.T_sensor_object(name, T_ee_object), frame.image(name).camera,
+                "tactile" if tactile else "silhouette", self.gel_distance_m[name] if tactile else None,
+                max_side=self.cfg.filter.roi_size_px,
+            )
+        return out
+
+    def occluders(self, img: SensorImage) -> list:
+        """The environment meshes ``(mesh_id, T_sensor_mesh)`` in front of camera image ``img``."""
+        return self.scene.occluders(img.T_world_sensor, lambda fr: self.frame_pose(fr, img.stamp_ns))
+
+    def observe(self, frame: Frame, belief: ParticleSet, converged: bool) -> Observation:
+        """The frame's observation, ROIs and occluders from the predicted ``belief``;
+        camera masks prompted at the belief's mean when ``converged`` (the paper's
+        promptable mode), else chosen among the proposals (Algorithm 1-2)."""
+        rois = self.rois(frame, belief.poses)
+        occluders = {name: [] if name in frame.tactile else self.occluders(frame.image(name))
+                     for name in {**frame.cameras, **frame.tactile}}
+        masks, outside = {}, {}
+        for name, img in frame.tactile.items():
+            full = self.observer.tactile_mask(img)
+            masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
+        mask_mode = "none"
+        if frame.cameras:
+            if converged:
+                cam_masks, mask_mode = self.prompted_masks(frame, rois, occluders, belief.mean()), "prompt"
+            else:
+                w = belief.weights()
+                idx = np.argsort(-w, kind="stable")[: self.cfg.masking.candidates]
+                cam_masks = self.camera_masks(frame, frame.cameras, rois, occluders, belief.poses[idx], w[idx],
+                                              self.cfg.filter.seed)
+                mask_mode = "proposals"
+            for name, m in cam_masks.items():
+                if m is not None:
+                    masks[name], outside[name] = m, 0.0
+        return Observation(rois, occluders, masks, outside, [n for n in frame.tactile if n in masks],
+                           [n for n in frame.cameras if n in masks], mask_mode)
+
+    def camera_masks(self, frame: Frame, cameras: dict[str, SensorImage], rois: dict[str, Roi], occluders: dict,
+                     candidates: np.ndarray, weights: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+        """Observed masks (ROI crops) of ``cameras`` by Algorithm 1-2: each camera's
+        proposals from the backend plus the GrabCut proposal seeded by the candidates' weighted
+        silhouettes, chosen jointly by how well the candidate poses ``T_ee_object`` (P, 4, 4)
+        with ``weights`` (P,) explain them. A camera whose proposals all fail is left out."""
+        proposals, rendered = {}, {}
+        for name, img in cameras.items():
+            roi = rois[name]
+            rendered[name] = self.scene.renderer.render_masks(
+                OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
+            box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
+            props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
+            belief = grabcut_from_belief(roi_image(img.image, roi), belief_probability(rendered[name], weights),
+                                         seed=seed)
+            proposals[name] = ([belief] if belief is not None else []) + props
+        return dict(select_masks(proposals, rendered, {n: 1.0 for n in cameras}).masks)
+
+    def prompted_masks(self, frame: Frame, rois: dict[str, Roi], occluders: dict,
+                       T_ee_object: np.ndarray) -> dict[str, np.ndarray | None]:
+        """The paper's promptable mode: each camera's mask prompted by the CAD silhouette at
+        ``T_ee_object`` (4, 4), cropped to its ROI (None where the silhouette is empty)."""
+        out = {}
+        for name, img in frame.cameras.items():
+            full = Roi.full(img.camera)
+            prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
+                                                      img.camera, full, occluders[name])[0]
+            out[name] = rois[name].crop(self.observer.camera_prompt(img, prompt)) if prompt.any() else None
+        return out
+
+
+def roi_image(image: np.ndarray, roi: Roi) -> np.ndarray:
+    """The ROI window of an (H, W, 3) uint8 image at ROI resolution (area-averaged, zero
+    outside the image)."""
+    import cv2
+
+    H, W = image.shape[:2]
+    win = np.zeros((roi.height, roi.width, 3), np.uint8)
+    ys, xs = max(roi.y0, 0), max(roi.x0, 0)
+    ye, xe = min(roi.y0 + roi.height, H), min(roi.x0 + roi.width, W)
+    if ye > ys and xe > xs:
+        win[ys - roi.y0 : ye - roi.y0, xs - roi.x0 : xe - roi.x0] = image[ys:ye, xs:xe]
+    rows, cols = roi.shape
+    if (rows, cols) == win.shape[:2]:
+        return win
+    interp = cv2.INTER_AREA if roi.scale < 1 else cv2.INTER_NEAREST
+    return cv2.resize(win, (cols, rows), interpolation=interp)

@@ -1,0 +1,98 @@
+"""The outputs of an estimate: track.mcap, track.csv, summary.json and config.resolved.yaml."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config, dump_config
+from ..estimator import FrameEstimate
+from ..filter.health import count_warnings, sensor_report, warning_lines
+from ..geometry import se3
+from ..io.atomic import atomic_output
+from ..io.mcap_writer import LogWriter
+
+
+def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped,
+             run_warnings: list[dict] | tuple = ()) -> dict:
+    """The run's summary.json. ``run_warnings``: warnings not tied to a frame (meshes, units),
+    reported with the frames' failure-mode warnings under ``warnings`` (counted per kind in
+    ``warning_counts``); ``sensors`` gives each sensor's agreement with the estimate and
+    weight factor (see filter/health.py)."""
+    last = results[-1]
+    q = se3.to_quat_xyzw(last.T_world_object)
+    qe = se3.to_quat_xyzw(last.T_ee_object)
+    flags: dict[str, int] = {}
+    warnings = list(run_warnings)
+    agreement = []
+    for r in results:
+        for fl in r.flags:
+            flags[fl] = flags.get(fl, 0) + 1
+        warnings.extend(r.warnings)
+        agreement.append((r.index, getattr(r, "sensor_iou", {})))
+    out = {
+        "log": str(log_path),
+        "object": cfg.object.name,
+        "modalities": list(cfg.modalities),
+        "masking": {"camera": cfg.masking.camera.backend, "tactile": cfg.masking.tactile.backend},
+        "particles": cfg.filter.num_particles,
+        "seed": cfg.filter.seed,
+        "frames_processed": len(results),
+        "frames_skipped": len(skipped),
+        "run_time_s": round(elapsed, 3),
+        "time_per_frame_s": round(elapsed / len(results), 4),
+        "final": {
+            "stamp_ns": last.stamp_ns,
+            "T_world_object": {"translation_m": last.T_world_object[:3, 3].tolist(), "quaternion_xyzw": q.tolist()},
+            "T_ee_object": {"translation_m": last.T_ee_object[:3, 3].tolist(), "quaternion_xyzw": qe.tolist()},
+            "covariance_ee": last.covariance.tolist(),
+            "translation_std_m": float(np.sqrt(np.trace(last.covariance[:3, :3]) / 3)),
+            "rotation_std_deg": float(np.degrees(np.sqrt(np.trace(last.covariance[3:, 3:]) / 3))),
+            "ess": last.ess,
+        },
+        "flags": flags,
+        "warnings": warnings,
+        "warning_counts": count_warnings(warnings),
+        "sensors": sensor_report(agreement, warnings),
+    }
+    if last.T_world_object_gt is not None:
+        dt = last.T_world_object[:3, 3] - last.T_world_object_gt[:3, 3]
+        out["final"]["ground_truth_translation_error_mm"] = float(1000 * np.linalg.norm(dt))
+        out["final"]["ground_truth_rotation_error_deg"] = float(
+            np.degrees(se3.rotation_angle(last.T_world_object[:3, :3], last.T_world_object_gt[:3, :3]))
+        )
+    return out
+
+
+def warning_report(summary: dict) -> list[str]:
+    """The summary's warnings for the terminal: one line per kind, saying in how many frames."""
+    return warning_lines(summary.get("warnings", []), summary["frames_processed"])
+
+
+def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
+    """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
+    with LogWriter(out_dir / "track.mcap") as w:
+        for r in results:
+            w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
+            w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
+            w.write_pose_array("/mvtop/particles", r.particles_world, r.stamp_ns, cfg.frames.world)
+    lines = ["frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m,ee_qx,ee_qy,ee_qz,ee_qw,"
+             "std_translation_m,std_rotation_deg,ess,contact,mask_mode,flags"]
+    for r in results:
+        q = se3.to_quat_xyzw(r.T_world_object)
+        qe = se3.to_quat_xyzw(r.T_ee_object)
+        st = np.sqrt(np.trace(r.covariance[:3, :3]) / 3)
+        sr = np.degrees(np.sqrt(np.trace(r.covariance[3:, 3:]) / 3))
+        vals = [*r.T_world_object[:3, 3], *q, *r.T_ee_object[:3, 3], *qe]
+        contact = "" if r.contact is None else str(int(r.contact))
+        lines.append(",".join([str(r.index), str(r.stamp_ns)] + [f"{v:.9f}" for v in vals]
+                              + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)]))
+    with atomic_output(out_dir / "track.csv", "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    with atomic_output(out_dir / "summary.json", "w") as fh:
+        json.dump(summary, fh, indent=2)
+        fh.write("\n")
+    with atomic_output(out_dir / "config.resolved.yaml", "w") as fh:
+        fh.write(dump_config(cfg))
