@@ -241,7 +241,8 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
     --kinematics tf-chain or joint-states, --camera-every, --drop-fraction, --stamp-jitter-ms
     (docs/recording.md); --write-config writes the config that reads such a log.
     """
-    from .sim.objects import get_object, list_objects as names
+    from .sim.objects import get_object
+    from .sim.objects import list_objects as names
 
     if list_objects:
         for n in names():

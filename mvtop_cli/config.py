@@ -47,9 +47,9 @@ class PoseSpec:
 
     @staticmethod
     def from_matrix(T: np.ndarray) -> "PoseSpec":
-        from scipy.spatial.transform import Rotation
-
         import warnings
+
+        from scipy.spatial.transform import Rotation
 
         with warnings.catch_warnings():  # at +-90 deg pitch the angles are not unique; any set is exact
             warnings.simplefilter("ignore", UserWarning)

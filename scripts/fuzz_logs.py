@@ -461,7 +461,7 @@ def m_image_encoding(rng, scene):
     if rng.random() < 0.3:
         e.fields["is_bigendian"] = int(_choice(rng, [1, 2, 255]))
         return
-    e.fields["encoding"] = str(_choice(rng, 
+    e.fields["encoding"] = str(_choice(rng,
         ["", "rgb16", "bayer_rggb8", "32FC1", "16UC1", "mono8", "mono16", "rgba8", "bgra8", "8UC3", "8UC4",
          "yuv422", "64FC1", "RGB8", "rgb8\x00", "\u00e9"]
     ))

@@ -28,15 +28,15 @@ import os
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from ..eval import report as R
 from ..durations import format_duration
 from ..errors import MvtopError
+from ..eval import report as R
 from ..io.atomic import atomic_output
 
 MODALITY_SETS = {
@@ -90,10 +90,10 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     """Simulate (once per object and seed, shared by the methods), estimate, evaluate."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
-    from ..sim.episode import EpisodeOptions
     from ..pipelines.estimate import EstimateOptions, estimate
     from ..pipelines.evaluate import evaluate
     from ..pipelines.simulate import SimulateOptions, simulate, write_scene_config
+    from ..sim.episode import EpisodeOptions
 
     run = Path(run_dir)
     scene = run.parent.parent / "scenes" / f"{obj}_{seed}"

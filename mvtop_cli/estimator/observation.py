@@ -31,6 +31,7 @@ from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
 from .scene import OBJECT_ID, SceneModel
 
+
 def _resolve_paths(options: dict[str, Any], base: Path | None) -> dict[str, Any]:
     """Option values of keys ending in ``_path`` resolved against the config's folder."""
     out = dict(options)

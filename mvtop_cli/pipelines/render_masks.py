@@ -21,14 +21,14 @@ import numpy as np
 
 from ..config import Config
 from ..errors import MvtopError, TrackError
+from ..estimator.observation import Observer
+from ..estimator.scene import OBJECT_ID, SceneModel
 from ..geometry import se3
 from ..io.atomic import atomic_output, atomic_path
 from ..io.frames import FrameReader
 from ..io.mcap_reader import McapLog
 from ..render.roi import Roi
 from .estimate import log_topics, sensor_topics
-from ..estimator.observation import Observer
-from ..estimator.scene import OBJECT_ID, SceneModel
 
 OBSERVED_BGR = (255, 120, 0)  # blue (paper figure 6: predicted mask)
 RENDERED_BGR = (0, 215, 255)  # yellow (rendered mask)

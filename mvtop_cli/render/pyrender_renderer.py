@@ -20,7 +20,6 @@ import numpy as np
 
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render.base import DEFAULT_ZNEAR_M, Occluder, RendererBase, RenderMode
-from mvtop_cli.render.errors import RenderError
 from mvtop_cli.render.gl import import_pyrender, offscreen_renderer
 from mvtop_cli.render.roi import Roi
 

@@ -7,7 +7,6 @@ The object's visible pixels come from the same depth buffer, for tests and debug
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+
 from mvtop_cli.contact.fcl_distance import FclDistance
 from mvtop_cli.contact.sdf import EnvironmentSDF, ObjectSignedDistance, sample_surface_points
 

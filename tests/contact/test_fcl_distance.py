@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+
 from mvtop_cli.contact.fcl_distance import FclDistance
 from mvtop_cli.errors import MeshError
 from mvtop_cli.geometry import se3

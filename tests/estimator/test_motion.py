@@ -5,9 +5,9 @@ import pytest
 
 from mvtop_cli.estimator.motion import MotionModel
 from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
-from mvtop_cli.geometry.se3 import perturb_about_origin
 from mvtop_cli.filter.particles import ParticleSet
 from mvtop_cli.geometry import se3
+from mvtop_cli.geometry.se3 import perturb_about_origin
 
 # Nominal grasp: object +z = ee -z, object origin 20 mm ahead of the TCP (docs/frames.md).
 T_NOMINAL = se3.make_pose(se3.rotvec_to_matrix(np.array([np.pi, 0.0, 0.0])), [0.0, 0.0, 0.02])

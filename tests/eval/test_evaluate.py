@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from _eval_tracks import GT_TOPIC, REPO, STEP_NS, trajectory, write_gt_log, write_track
 from scipy.spatial.transform import Rotation
 
 from mvtop_cli.config import load_config
@@ -17,8 +18,6 @@ from mvtop_cli.errors import ConfigError, LogError, MvtopError, TrackError
 from mvtop_cli.eval.report import parse_bop_csv
 from mvtop_cli.geometry import se3
 from mvtop_cli.pipelines.evaluate import aggregate, evaluate, read_gt_file
-
-from _eval_tracks import GT_TOPIC, REPO, STEP_NS, trajectory, write_gt_log, write_track
 
 N = 8
 

@@ -4,14 +4,19 @@ collapse and its recovery, estimate jumps, the sensor consistency watch, and the
 import numpy as np
 import pytest
 
-from mvtop_cli.filter.health import (
-    SensorConsistency, check_jump, count_warnings, jump_warning, step_warnings, warning_lines,
-)
 from mvtop_cli.estimator.motion import MotionModel
 from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
-from mvtop_cli.geometry.se3 import perturb_about_origin
+from mvtop_cli.filter.health import (
+    SensorConsistency,
+    check_jump,
+    count_warnings,
+    jump_warning,
+    step_warnings,
+    warning_lines,
+)
 from mvtop_cli.filter.pf import ParticleFilter
 from mvtop_cli.geometry import se3
+from mvtop_cli.geometry.se3 import perturb_about_origin
 
 T_NOMINAL = se3.make_pose(se3.rotvec_to_matrix(np.array([np.pi, 0.0, 0.0])), [0.0, 0.0, 0.02])
 FIRM = MotionModel(1e-5, np.deg2rad(0.01), 1e-4, np.deg2rad(0.1))

@@ -20,7 +20,7 @@ from _io_scene import (
 )
 
 from mvtop_cli.errors import LogError
-from mvtop_cli.io.frames import undistort_maps, FrameReader, LogTopics, SensorTopics, iter_frames
+from mvtop_cli.io.frames import FrameReader, LogTopics, SensorTopics, iter_frames, undistort_maps
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
 

@@ -3,9 +3,9 @@ per-box masks and model checks, on tiny models built in the tests (onnx_models.p
 
 import cv2
 import numpy as np
+import onnx_models
 import pytest
 
-import onnx_models
 from mvtop_cli.errors import ConfigError, ModelError
 from mvtop_cli.masking.base import MaskContext, get_backend
 from mvtop_cli.masking.onnx_instance import InstanceOnnxBackend, InstanceOnnxOptions

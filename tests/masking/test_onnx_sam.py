@@ -3,14 +3,13 @@ on tiny encoder/decoder models built in the tests (tests/masking/onnx_models.py)
 
 import cv2
 import numpy as np
+import onnx_models
 import pytest
 
 from mvtop_cli.errors import ConfigError, ModelError
 from mvtop_cli.masking.base import MaskContext, PromptableMaskBackend, get_backend
 from mvtop_cli.masking.onnx_common import ResizeFrame, mask_iou, mask_nms, remove_small_regions, stability_score
 from mvtop_cli.masking.onnx_sam import SamOnnxBackend, SamOnnxOptions, grid_points, interior_points
-
-import onnx_models
 
 RED, GREEN, BACKGROUND = (255, 0, 0), (0, 255, 0), 40
 

@@ -15,12 +15,12 @@ import yaml
 
 from mvtop_cli.cli import main
 from mvtop_cli.config import load_config
+from mvtop_cli.estimator.scene import SceneModel
 from mvtop_cli.geometry import se3
 from mvtop_cli.io.frames import FrameReader
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
 from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
-from mvtop_cli.estimator.scene import SceneModel
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -36,12 +36,12 @@ def test_prompt_mode_only_when_configured_and_converged(tmp_path):
 def test_frames_with_a_missing_sensor_still_update(tmp_path):
     """Drop the side camera's image in frames 1-3 and a tactile image in frame 4: every frame
     is still estimated, with the sensors it has."""
-    from mvtop_cli.io.mcap_reader import McapLog
-    from mvtop_cli.io.mcap_writer import LogWriter
     from mvtop_cli.estimator import Estimator
-    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
     from mvtop_cli.estimator.scene import SceneModel
     from mvtop_cli.io.frames import FrameReader
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.io.mcap_writer import LogWriter
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
 
     src = ROOT / "sample_logs" / "conn2.mcap"
     gappy = tmp_path / "gappy.mcap"
@@ -66,11 +66,11 @@ def test_frames_with_a_missing_sensor_still_update(tmp_path):
 
 
 def _first_frame_estimator(cfg):
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.estimator.scene import SceneModel
     from mvtop_cli.io.frames import FrameReader
     from mvtop_cli.io.mcap_reader import McapLog
-    from mvtop_cli.estimator import Estimator
     from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
-    from mvtop_cli.estimator.scene import SceneModel
 
     with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))

@@ -4,7 +4,6 @@ with tiny test models of the real signatures (no weights are downloaded)."""
 from __future__ import annotations
 
 import importlib.util
-import json
 from pathlib import Path
 
 import cv2

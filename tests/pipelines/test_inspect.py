@@ -120,7 +120,6 @@ def test_unreadable_log_raises(tmp_path):
 def test_inspect_reports_dropped_frames_and_rate_mismatch(tmp_path):
     import numpy as np
 
-    from mvtop_cli.geometry.camera import PinholeCamera
     from mvtop_cli.io.mcap_writer import LogWriter
     from mvtop_cli.pipelines.inspect import format_report, inspect_log
 

@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from mvtop_cli.config import load_config
+from mvtop_cli.estimator import FrameEstimate
 from mvtop_cli.geometry import se3
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.io.frames import FrameReader, LogTopics, SensorTopics
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
-from mvtop_cli.estimator import FrameEstimate
 from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
 
 ROOT = Path(__file__).resolve().parents[2]

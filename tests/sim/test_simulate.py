@@ -14,11 +14,11 @@ import pytest
 
 from mvtop_cli.config import load_config
 from mvtop_cli.contact.fcl_distance import FclDistance
+from mvtop_cli.estimator.scene import OBJECT_ID, SceneModel
 from mvtop_cli.geometry import se3
 from mvtop_cli.io.frames import FrameReader
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
-from mvtop_cli.estimator.scene import OBJECT_ID, SceneModel
 from mvtop_cli.pipelines.simulate import SimulateOptions, simulate, write_scene_config
 from mvtop_cli.render.roi import Roi
 from mvtop_cli.sim.episode import CONTACT_DISTANCE_M, EpisodeOptions

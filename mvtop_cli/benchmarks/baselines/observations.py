@@ -22,12 +22,12 @@ import numpy as np
 
 from ...config import Config
 from ...errors import EstimationError
-from ...geometry import se3
-from ...io.frames import FrameReader
-from ...io.mcap_reader import McapLog
 from ...estimator.observation import ObservationModel
 from ...estimator.prior import GraspPriorModel
 from ...estimator.scene import SceneModel
+from ...geometry import se3
+from ...io.frames import FrameReader
+from ...io.mcap_reader import McapLog
 from ...pipelines.estimate import log_topics, sensor_topics
 from ...records import Frame
 from .points import LabelledPoints, camera_free_points, environment_free_points, tactile_points

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ...config import Config
-from ...io.meshes import load_mesh
 from ...estimator import FrameEstimate
+from ...io.meshes import load_mesh
 from ...pipelines.track import run_summary, write_track
 from . import chsel_runner
 from .observations import LogPoints, PointOptions, log_points, prior_samples

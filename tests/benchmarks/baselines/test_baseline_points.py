@@ -139,8 +139,8 @@ def test_points_of_a_sample_log_agree_with_the_ground_truth():
 
 
 def test_missing_extra_stops_the_benchmark_before_any_run_with_the_pip_command(tmp_path, monkeypatch):
-    from mvtop_cli.benchmarks.baselines.chsel_runner import BaselineUnavailable, available
     from mvtop_cli.benchmarks.accuracy import AccuracyOptions, run_accuracy
+    from mvtop_cli.benchmarks.baselines.chsel_runner import BaselineUnavailable, available
 
     monkeypatch.setitem(__import__("sys").modules, "chsel", None)  # as if chsel were not installed
     assert not available()
