@@ -32,7 +32,7 @@ from ...pipelines.estimate import log_topics, sensor_topics
 from ...records import Frame
 from .points import LabelledPoints, camera_free_points, environment_free_points, tactile_points
 
-_CANDIDATES = 96  # prior poses rendered for the camera mask selection (as the estimator's)
+
 _REGION_MARGIN_M = 1e-3  # added to the radius of the region the object can occupy
 
 
@@ -105,7 +105,7 @@ class FramePoints:
         self.observations = ObservationModel(cfg, scene, frame_pose)
         self.tactile_cfg = {t.name: t for t in cfg.sensors.tactile}
         self.centre_ee, self.radius = object_region(cfg, scene)
-        self.candidates = prior_samples(cfg, _CANDIDATES, np.random.default_rng(options.seed))
+        self.candidates = prior_samples(cfg, cfg.masking.candidates, np.random.default_rng(options.seed))
 
     def __call__(self, frame: Frame) -> LabelledPoints:
         o = self.options
