@@ -66,14 +66,21 @@ class FrameEstimate:
 
 
 class Estimator:
-    """The M-VTOP filter over a stream of frames.
+    """The M-VTOP filter over a stream of frames: the online API, and what ``mvtop
+    estimate`` runs over a log.
 
-    cfg, scene : the validated config and the scene built from it (``SceneModel``).
+    cfg, scene : the validated config and the scene built from it (``SceneModel``; or use
+      ``Estimator.from_config``).
     frame_pose : ``(tf_frame, stamp_ns) -> T_world_frame`` (4, 4), for environment meshes
-      mounted on moving TF frames (fingers); only called when the config has such meshes.
+      mounted on moving TF frames (fingers); only called when the config has such meshes
+      (None: the config must have none).
+
+    ``step(frame)`` takes one ``records.Frame`` (images with their sensor poses, the end
+    effector pose, the contact state) and returns its ``FrameEstimate``: the estimate, its
+    covariance and the diagnostics ``track.csv`` holds.
     """
 
-    def __init__(self, cfg: Config, scene: SceneModel, frame_pose: Callable[[str, int], np.ndarray]):
+    def __init__(self, cfg: Config, scene: SceneModel, frame_pose: Callable[[str, int], np.ndarray] | None = None):
         self.cfg = cfg
         self.scene = scene
         f, s = cfg.filter, cfg.search
@@ -90,7 +97,7 @@ class Estimator:
             collapse_retry_iterations=f.collapse_retry_iterations,
         )
         self.prior = GraspPriorModel(cfg.grasp_prior, s.bound)
-        self.observations = ObservationModel(cfg, scene, frame_pose)
+        self.observations = ObservationModel(cfg, scene, frame_pose or _no_moving_frames)
         # per-sensor agreement with the others; scales eq. 1-2 weights of a sensor that keeps disagreeing
         self.consistency = SensorConsistency(**vars(cfg.consistency))
         self.search = {"rounds": s.rounds, "elite_fraction": s.elite_fraction, "widen": s.widen,
@@ -99,6 +106,13 @@ class Estimator:
         self.particles: ParticleSet | None = None
         self.last_likelihood: Likelihood | None = None
         self.use_contact = "contact" in cfg.modalities
+
+    @classmethod
+    def from_config(cls, cfg: Config, frame_pose: Callable[[str, int], np.ndarray] | None = None) -> Estimator:
+        """The online estimator of a validated config (``config.load_config``): loads the
+        meshes it names and, with the contact modality, builds the contact grid (a second or
+        two). Feed it frames with ``step``; ``frame_pose`` as for the constructor."""
+        return cls(cfg, SceneModel(cfg, build_contact="contact" in cfg.modalities), frame_pose)
 
     @property
     def observer(self):
@@ -243,3 +257,8 @@ class Estimator:
             alt.diagnostics.setdefault("flags", []).append("re_searched")
             return alt
         return result
+
+
+def _no_moving_frames(frame: str, stamp_ns: int) -> np.ndarray:
+    raise ValueError(f"the config has an environment mesh in TF frame {frame!r}: give the Estimator a frame_pose "
+                     "callable that returns T_world_frame at a stamp")

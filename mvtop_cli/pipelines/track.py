@@ -71,6 +71,23 @@ def warning_report(summary: dict) -> list[str]:
     return warning_lines(summary.get("warnings", []), summary["frames_processed"])
 
 
+TRACK_CSV_HEADER = ("frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m,ee_qx,ee_qy,ee_qz,ee_qw,"
+                    "std_translation_m,std_rotation_deg,ess,contact,mask_mode,flags")
+
+
+def track_csv_row(r: FrameEstimate) -> str:
+    """One frame's line of track.csv: pose in world and in ee (metres, quaternion xyzw), RMS
+    spread (translation [m], rotation [deg]), ESS, contact, mask mode and flags."""
+    q = se3.to_quat_xyzw(r.T_world_object)
+    qe = se3.to_quat_xyzw(r.T_ee_object)
+    st = np.sqrt(np.trace(r.covariance[:3, :3]) / 3)
+    sr = np.degrees(np.sqrt(np.trace(r.covariance[3:, 3:]) / 3))
+    vals = [*r.T_world_object[:3, 3], *q, *r.T_ee_object[:3, 3], *qe]
+    contact = "" if r.contact is None else str(int(r.contact))
+    return ",".join([str(r.index), str(r.stamp_ns)] + [f"{v:.9f}" for v in vals]
+                    + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)])
+
+
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
     """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
     with LogWriter(out_dir / "track.mcap") as w:
@@ -78,17 +95,7 @@ def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summar
             w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
             w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
             w.write_pose_array("/mvtop/particles", r.particles_world, r.stamp_ns, cfg.frames.world)
-    lines = ["frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m,ee_qx,ee_qy,ee_qz,ee_qw,"
-             "std_translation_m,std_rotation_deg,ess,contact,mask_mode,flags"]
-    for r in results:
-        q = se3.to_quat_xyzw(r.T_world_object)
-        qe = se3.to_quat_xyzw(r.T_ee_object)
-        st = np.sqrt(np.trace(r.covariance[:3, :3]) / 3)
-        sr = np.degrees(np.sqrt(np.trace(r.covariance[3:, 3:]) / 3))
-        vals = [*r.T_world_object[:3, 3], *q, *r.T_ee_object[:3, 3], *qe]
-        contact = "" if r.contact is None else str(int(r.contact))
-        lines.append(",".join([str(r.index), str(r.stamp_ns)] + [f"{v:.9f}" for v in vals]
-                              + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)]))
+    lines = [TRACK_CSV_HEADER] + [track_csv_row(r) for r in results]
     with atomic_output(out_dir / "track.csv", "w") as fh:
         fh.write("\n".join(lines) + "\n")
     with atomic_output(out_dir / "summary.json", "w") as fh:
