@@ -374,7 +374,7 @@ def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_d
     write report.json, report.md, report.html (plots) and a BOP-format CSV.
 
     Metrics per frame and at the final frame: translation and rotation error, the paper's
-    bounding-box pose error, ADD, ADD-S, MSSD, symmetry-aware errors, whether the final error
+    bounding-box pose error, ADD, ADD-S (BOP adi), MSSD, MSPD per camera, symmetry-aware errors, whether the final error
     is within the part's clearance (insertable), and NEES of the reported covariance.
     """
     from .pipelines.evaluate import evaluate

@@ -17,7 +17,7 @@ TABLE_ROWS = (
     ("rotation_error_deg", "rotation error", "deg"),
     ("pose_error_mm", "pose error (mean bbox-corner distance, paper)", "mm"),
     ("add_mm", "ADD", "mm"),
-    ("add_s_mm", "ADD-S", "mm"),
+    ("adi_mm", "ADD-S (BOP adi)", "mm"),
     ("add_sym_mm", "ADD, min over symmetries", "mm"),
     ("mssd_mm", "MSSD", "mm"),
     ("insertion_error_mm", "insertion error (max lateral corner displacement)", "mm"),
