@@ -64,7 +64,8 @@ class ObjectConfig:
     name: str
     mesh: Path
     units: Literal["m", "mm"] = "m"
-    clearance_m: float = field(default=0.0003, metadata=_rng(0.0, 0.01, lo_open=True, doc="per-side clearance in the receptacle"))
+    clearance_m: float | None = field(default=None, metadata=_rng(0.0, 0.01, lo_open=True, doc=(
+        "per-side clearance in the receptacle; without it eval reports insertable as n/a")))
     insertion_depth_m: float = field(default=0.0, metadata=_rng(0.0, 0.2))
     symmetries: tuple[PoseSpec, ...] = field(
         default=(), metadata={"doc": "transforms S (besides the identity) with mesh == S applied to mesh"}

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -334,7 +335,7 @@ class ObjectModel:
     corners: np.ndarray
     insertion_corners: np.ndarray
     group: np.ndarray
-    clearance_m: float
+    clearance_m: float | None  # None: not configured, "insertable" is n/a
     insertion_depth_m: float
 
 
@@ -415,7 +416,10 @@ def score_poses(
         "symmetry_index": k,
     }
     out["add_or_adi_m"] = out["adi_m"] if sym else out["add_m"]
-    out["insertable"] = out["insertion_error_m"] <= model.clearance_m
+    if model.clearance_m is None:  # no clearance configured: not decidable
+        out["insertable"] = np.full(len(out["insertion_error_m"]), None, dtype=object)
+    else:
+        out["insertable"] = out["insertion_error_m"] <= model.clearance_m
     if covariance_ee is not None:
         T_ee_gt = se3.invert(T_world_ee) @ T_gt
         e = M.tangent_error(T_ee_est @ G[k], T_ee_gt)
@@ -473,7 +477,8 @@ METRIC_NAMES = tuple(m[0] for m in _METRICS)
 
 def _row(scores: dict[str, np.ndarray], i: int) -> dict[str, Any]:
     row: dict[str, Any] = {name: float(scores[key][i] * f) for name, key, f in _METRICS}
-    row["insertable"] = bool(scores["insertable"][i])
+    ok = scores["insertable"][i]
+    row["insertable"] = None if ok is None else bool(ok)
     row["symmetry_index"] = int(scores["symmetry_index"][i])
     return row
 
@@ -482,14 +487,35 @@ def _nees_block(value: float, bound: float) -> dict[str, Any]:
     return {"nees": float(value), "nees_bound": bound, "nees_within_bound": bool(value <= bound)}
 
 
-def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None) -> dict:
+BOP_NAME = re.compile(r"^[A-Za-z0-9]+(?:-[A-Za-z0-9]+)*_[A-Za-z0-9]+-[A-Za-z0-9]+(?:-[A-Za-z0-9]+)?$")
+
+
+def bop_csv_name(name: str | None) -> str:
+    """The BOP CSV's file name: ``estimates_bop.csv``, or ``NAME.csv`` for a BOP result name
+    ``METHOD_DATASET-SPLIT[-SPLITTYPE]`` (bop_toolkit's scripts split the file name at the
+    first ``_`` and the rest at ``-``: no ``_`` in the method, none in dataset or split)."""
+    if name is None:
+        return "estimates_bop.csv"
+    stem = name[:-4] if name.endswith(".csv") else name
+    if not BOP_NAME.match(stem):
+        raise MvtopError(
+            f"--bop-name {name!r}: expected METHOD_DATASET-SPLIT as bop_toolkit names results "
+            "(e.g. mvtop_mydataset-test; letters, digits and '-' in the method, no '_' or '-' in dataset and split)"
+        )
+    return stem + ".csv"
+
+
+def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None,
+             bop_name: str | None = None) -> dict:
     """Score the track in ``track_dir`` against the ground truth of ``log`` (or the final
     pose in ``gt_file``, which wins when both are given) and write report.json,
     report.md, report.html and estimates_bop.csv into ``out_dir``; returns the report
     (the content of report.json).
 
-    ``config`` defaults to ``track_dir/config.resolved.yaml``.
+    ``config`` defaults to ``track_dir/config.resolved.yaml``. ``bop_name`` names the BOP
+    CSV as bop_toolkit expects results to be named (:func:`bop_csv_name`).
     """
+    bop_file = bop_csv_name(bop_name)
     track_dir = Path(track_dir)
     track = read_track(track_dir)
     if config is None:
@@ -527,7 +553,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         })
     final = {
         **when(n - 1), **_row(final_scores, 0),
-        "clearance_mm": model.clearance_m * 1e3,
+        "clearance_mm": _mm(model.clearance_m),
         **_nees_block(final_scores["nees"][0], bound),
         **({"mspd_px": {c: float(v[-1]) for c, v in mspd.items()}} if mspd else {}),
         "nees_covariance": "summary.json final.covariance_ee (full 6x6)",
@@ -538,7 +564,8 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "count": n,
         "with_truth": int(len(idx)),
         **{name: _stats([r[name] for r in per_frame]) for name in METRIC_NAMES},
-        "insertable_fraction": float(np.mean([r["insertable"] for r in per_frame])),
+        "insertable_fraction": (None if model.clearance_m is None
+                                else float(np.mean([r["insertable"] for r in per_frame]))),
         "nees": _stats(scores["nees"]),
         "nees_within_bound_fraction": float(np.mean(scores["nees"] <= bound)),
         "nees_covariance": "diagonal approximation from track.csv's std_translation_m and std_rotation_deg "
@@ -552,14 +579,14 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "track_dir": str(track_dir),
         "object": model.name,
         "symmetries": int(len(model.group) - 1),
-        "clearance_mm": model.clearance_m * 1e3,
+        "clearance_mm": _mm(model.clearance_m),
         "insertion_depth_mm": model.insertion_depth_m * 1e3,
         "ground_truth": gt_info,
         "estimate": {k: track.summary.get(k) for k in summary_keys},
         "final": final,
         "frames": frames_block,
         "per_frame": per_frame,
-        "files": {"bop_csv": "estimates_bop.csv", "markdown": "report.md", "html": "report.html"},
+        "files": {"bop_csv": bop_file, "markdown": "report.md", "html": "report.html"},
     })
     write_report(report, track, Path(out_dir))
     return report
@@ -585,6 +612,10 @@ def _ground_truth(track: Track, log: Path | None, gt_file: Path | None, config: 
         )
     return T_gt, {"source": "log", "log": str(log), "topic": topic, "frame": extra["frame"], "frames": "all",
                   "interpolated": True, "_cameras": extra["cameras"]}
+
+
+def _mm(value_m: float | None) -> float | None:
+    return None if value_m is None else value_m * 1e3
 
 
 def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -647,9 +678,9 @@ def aggregate(reports: list[dict]) -> dict:
 
     def block(items: list[dict]) -> dict:
         out: dict[str, Any] = {"runs": len(items)}
-        ok = [bool(f["insertable"]) for f in items]
-        out["successes"] = int(sum(ok))
-        out["success_rate"] = float(np.mean(ok))
+        ok = [bool(f["insertable"]) for f in items if f["insertable"] is not None]  # None: no clearance configured
+        out["successes"] = int(sum(ok)) if ok else None
+        out["success_rate"] = float(np.mean(ok)) if ok else None
         for name in METRIC_NAMES:
             vals = [f[name] for f in items if f.get(name) is not None]
             out[name] = _stats(vals)

@@ -358,3 +358,40 @@ def test_bad_ground_truth_file(tmp_path, content, message):
         read_gt_file(gt)
     with pytest.raises(ConfigError, match="ground-truth file not found"):
         read_gt_file(tmp_path / "missing.yaml")
+
+
+def test_without_a_clearance_insertable_is_n_a(tmp_path, conn1):
+    """A config without object.clearance_m: no insertable verdict anywhere, the rest as usual."""
+    stamps, T_gt, T_ee, log = conn1
+    track = write_track(tmp_path / "track", "conn1", stamps, world_offset(T_gt, 1e-4 * lateral_unit(T_gt[-1])), T_ee)
+    cfg_path = track / "config.resolved.yaml"
+    data = yaml.safe_load(cfg_path.read_text())
+    del data["object"]["clearance_m"]
+    cfg_path.write_text(yaml.safe_dump(data))
+    report = evaluate(track, log, None, tmp_path / "r")
+    f = report["final"]
+    assert report["clearance_mm"] is None and f["clearance_mm"] is None and f["insertable"] is None
+    assert report["frames"]["insertable_fraction"] is None
+    assert all(r["insertable"] is None for r in report["per_frame"])
+    assert f["insertion_error_mm"] == pytest.approx(0.1, abs=1e-6)
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "n/a (no clearance configured)" in md and "Insertable: n/a" in md
+    assert "insertable: n/a" in (tmp_path / "r" / "report.html").read_text()
+    agg = aggregate([report])
+    assert agg["success_rate"] is None and agg["successes"] is None
+
+
+def test_bop_csv_named_as_bop_toolkit_expects(tmp_path, conn1):
+    stamps, T_gt, T_ee, log = conn1
+    track = write_track(tmp_path / "track", "conn1", stamps, T_gt, T_ee)
+    report = evaluate(track, log, None, tmp_path / "r", bop_name="mvtop-vt_conn1-test")
+    assert report["files"]["bop_csv"] == "mvtop-vt_conn1-test.csv"
+    name = (tmp_path / "r" / "mvtop-vt_conn1-test.csv")
+    # bop_toolkit's scripts: method = before the first '_', then dataset-split
+    method, info = name.stem.split("_", 1)
+    assert (method, *info.split("-")) == ("mvtop-vt", "conn1", "test")
+    assert len(parse_bop_csv(name.read_text())) == len(stamps)
+    for bad in ("mvtop_conn1_test", "mvtop", "my_method_conn1-test", "mvtop_conn-1-test-x-y"):
+        with pytest.raises(MvtopError, match="METHOD_DATASET-SPLIT"):
+            evaluate(track, log, None, tmp_path / "bad", bop_name=bad)
+    assert not (tmp_path / "bad").exists()
