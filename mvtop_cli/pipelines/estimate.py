@@ -41,6 +41,7 @@ from ..io.atomic import atomic_output
 from ..io.frames import LogTopics, SensorTopics, FrameReader
 from ..io.mcap_reader import McapLog
 from ..io.mcap_writer import LogWriter
+from ..io.track_scene import object_triangles, write_track_scene
 from ..masking.belief import belief_probability, grabcut_from_belief
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
@@ -733,6 +734,9 @@ def warning_report(summary: dict) -> list[str]:
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
     """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
     with LogWriter(out_dir / "track.mcap") as w:
+        write_track_scene(w, [r.stamp_ns for r in results], np.stack([r.T_world_object for r in results]),
+                          np.stack([r.T_ee_object for r in results]),
+                          object_triangles(cfg.object.mesh, cfg.object.units), cfg.frames.world, cfg.frames.ee)
         for r in results:
             w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
             w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
