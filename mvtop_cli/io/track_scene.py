@@ -3,10 +3,11 @@
 Beside the pose topics, ``write_track_scene`` adds
 
 - ``/tf``: at every track stamp ``world -> ee`` (``T_world_ee = T_world_object
-  T_ee_object^-1``, the end effector the estimate was made with) and ``ee ->
-  object_estimate`` (``T_ee_object``), so ``/mvtop/object_pose_ee`` (in ``ee``) and
-  ``object_estimate`` are placed without the recorded log; ``world -> object_estimate``
-  follows by composition;
+  T_ee_object^-1``, the end effector the estimate was made with) and ``world ->
+  object_estimate`` (``T_world_object``), so ``/mvtop/object_pose_ee`` (in ``ee``) and
+  ``object_estimate`` are placed without the recorded log. Opened beside the log, ``ee``
+  has two parents (the log's chain and ``world`` here); both give the same pose, the one
+  the estimate used;
 - ``/mvtop/object_model``: the object's CAD model as a visualization_msgs/Marker
   TRIANGLE_LIST in ``object_estimate`` (frame-locked), written once at the first stamp: it
   stays until replaced, so the part is drawn at the estimate of every frame.
@@ -48,7 +49,7 @@ def write_track_scene(
     for i, stamp in enumerate(stamps_ns):
         if i == 0:
             w.write_triangle_marker(MODEL_TOPIC, triangles, int(stamp), OBJECT_FRAME, rgba=MODEL_RGBA, ns="object")
-        w.write_tf([(world_frame, ee_frame, T_world_ee[i]), (ee_frame, OBJECT_FRAME, T_ee_object[i])], int(stamp))
+        w.write_tf([(world_frame, ee_frame, T_world_ee[i]), (world_frame, OBJECT_FRAME, T_world_object[i])], int(stamp))
 
 
 def object_triangles(mesh_path: str | Path, units: str = "m") -> np.ndarray:

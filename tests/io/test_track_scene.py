@@ -99,3 +99,9 @@ def test_model_marker_is_the_cad_mesh(track):
     pts = np.array([[p.x, p.y, p.z] for p in marker.points])
     np.testing.assert_allclose(pts.reshape(-1, 3, 3), np.asarray(mesh.vertices)[np.asarray(mesh.faces)], atol=1e-12)
     assert marker.color.a > 0.5 and marker.lifetime.sec == 0 and marker.lifetime.nanosec == 0
+
+
+def test_tf_has_world_to_ee_and_world_to_object_estimate(track):
+    pairs = {(tr.header.frame_id, tr.child_frame_id) for topic, _s, _t, m in read_all(track) if topic == "/tf"
+             for tr in m.transforms}
+    assert pairs == {("world", "ee"), ("world", "object_estimate")}
