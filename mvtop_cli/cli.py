@@ -369,7 +369,8 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Report folder (default: TRACK_DIR/eval).")
 @click.option("--bop-name", metavar="METHOD_DATASET-SPLIT",
-              help="Name the BOP CSV as bop_toolkit's scripts expect, e.g. mvtop_mydataset-test (default: estimates_bop.csv).")
+              help="Name the BOP CSV as bop_toolkit's scripts expect, e.g. mvtop_mydataset-test "
+                   "(default: estimates_bop.csv).")
 @CONFIG_OPTION
 def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_dir: Path | None, bop_name: str | None,
              config_path: Path | None) -> None:

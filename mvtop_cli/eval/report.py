@@ -105,7 +105,8 @@ def _final_rows(report: dict) -> list[list[str]]:
     rows += [[f"MSPD, camera {cam}", _fmt(v), "px"] for cam, v in (f.get("mspd_px") or {}).items()]
     rows.append(["clearance (per side)", _fmt(f.get("clearance_mm")), "mm"])
     ins = f.get("insertable")
-    rows.append(["**insertable**", "**" + ("n/a (no clearance configured)" if ins is None else _fmt(bool(ins))) + "**", ""])
+    verdict = "n/a (no clearance configured)" if ins is None else _fmt(bool(ins))
+    rows.append(["**insertable**", f"**{verdict}**", ""])
     rows.append(["NEES (full covariance)", _fmt(f.get("nees")), f"95 % bound {_fmt(f.get('nees_bound'), 2)}"])
     rows.append(["NEES within bound", _fmt(bool(f.get("nees_within_bound"))), ""])
     return rows

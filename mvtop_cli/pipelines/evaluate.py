@@ -290,7 +290,8 @@ def _tf_reader(log, config: Config):
 
     if not (has(config.topics.tf) or has(config.topics.tf_static)):
         return None
-    sensors = [s for s in sensor_topics(replace(config, modalities=MODALITIES)) if has(s.image_topic) and has(s.info_topic)]
+    every = sensor_topics(replace(config, modalities=MODALITIES))
+    sensors = [s for s in every if has(s.image_topic) and has(s.info_topic)]
     if not sensors:
         return None
     return FrameReader(log, sensors, log_topics(config))

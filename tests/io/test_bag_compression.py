@@ -57,7 +57,8 @@ def bags(tmp_path_factory) -> dict[str, Path]:
 
 
 def test_the_bags_are_what_they_claim(bags):
-    meta = {k: yaml.safe_load((p / "metadata.yaml").read_text())["rosbag2_bagfile_information"] for k, p in bags.items()}
+    meta = {k: yaml.safe_load((p / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+            for k, p in bags.items()}
     assert (meta["message"]["compression_mode"], meta["message"]["compression_format"]) == ("message", "zstd")
     assert (meta["file"]["compression_mode"], meta["file"]["compression_format"]) == ("file", "zstd")
     assert meta["file"]["relative_file_paths"][0].endswith(".mcap.zstd")

@@ -68,7 +68,8 @@ def test_every_frame_connects_to_world_at_every_stamp(track):
         if topic == "/tf":
             for tr in m.transforms:
                 stamp = tr.header.stamp.sec * 10**9 + tr.header.stamp.nanosec
-                tf[(tr.child_frame_id, stamp)] = (tr.header.frame_id, pose_of(tr.transform.translation, tr.transform.rotation))
+                T = pose_of(tr.transform.translation, tr.transform.rotation)
+                tf[(tr.child_frame_id, stamp)] = (tr.header.frame_id, T)
 
     def in_world(frame: str, stamp: int) -> np.ndarray:
         T = np.eye(4)
