@@ -386,13 +386,17 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
               help="YAML/JSON with the true final pose (translation_m, quaternion_xyzw), e.g. the nominal inserted pose.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Report folder (default: TRACK_DIR/eval).")
+@click.option("--bop-name", metavar="METHOD_DATASET-SPLIT",
+              help="Name the BOP CSV as bop_toolkit's scripts expect, e.g. mvtop_mydataset-test "
+                   "(default: estimates_bop.csv).")
 @CONFIG_OPTION
-def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_dir: Path | None, config_path: Path | None) -> None:
+def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_dir: Path | None, bop_name: str | None,
+             config_path: Path | None) -> None:
     """Compare the pose track in TRACK_DIR (an `estimate` output) with the ground truth and
     write report.json, report.md, report.html (plots) and a BOP-format CSV.
 
     Metrics per frame and at the final frame: translation and rotation error, the paper's
-    bounding-box pose error, ADD, ADD-S, MSSD, symmetry-aware errors, whether the final error
+    bounding-box pose error, ADD, ADD-S (BOP adi), MSSD, MSPD per camera, symmetry-aware errors, whether the final error
     is within the part's clearance (insertable), and NEES of the reported covariance.
     """
     from .pipelines.evaluate import evaluate
@@ -403,12 +407,15 @@ def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_d
 
         cfg = load_config(config_path)
     out = out_dir if out_dir is not None else track_dir / "eval"
-    report = evaluate(track_dir, log_path, gt_file, out, cfg)
+    report = evaluate(track_dir, log_path, gt_file, out, cfg, bop_name=bop_name)
     f = report["final"]
     click.echo(
         f"wrote {out}: final error {f['translation_error_mm']:.3f} mm, {f['rotation_error_deg']:.2f} deg; "
-        f"insertion error {f['insertion_error_mm']:.3f} mm against {f['clearance_mm']:.3f} mm clearance: "
-        f"{'insertable' if f['insertable'] else 'NOT insertable'}; NEES {f['nees']:.1f} "
+        + (f"insertion error {f['insertion_error_mm']:.3f} mm, insertable n/a (no object.clearance_m in the config); "
+           if f["clearance_mm"] is None else
+           f"insertion error {f['insertion_error_mm']:.3f} mm against {f['clearance_mm']:.3f} mm clearance: "
+           f"{'insertable' if f['insertable'] else 'NOT insertable'}; ")
+        + f"NEES {f['nees']:.1f} "
         f"({'within' if f['nees_within_bound'] else 'above'} the 95% bound {f['nees_bound']:.1f})"
     )
 

@@ -33,15 +33,37 @@ def _rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fa
 
 @dataclass(frozen=True)
 class PoseSpec:
-    """A rigid transform given as translation [m] and roll-pitch-yaw [deg] (extrinsic x-y-z)."""
+    """A rigid transform ``T_parent_child``: translation ``xyz_m`` [m] and a rotation given
+    either as ``rpy_deg`` [deg] or as a unit quaternion ``quat_xyzw`` (x, y, z, w; the ROS
+    order, as in a TF message or ``render-masks --pose-ee``), not both.
+
+    ``rpy_deg = (r, p, y)`` is extrinsic x-y-z: rotate by r about the parent's x axis, then
+    by p about the parent's y axis, then by y about the parent's z axis, ``R = Rz(y) Ry(p)
+    Rx(r)``; the same matrix as ROS's ``tf2::Quaternion::setRPY(r, p, y)`` and URDF's
+    ``<origin rpy>``.
+    """
 
     xyz_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_rng(-1000.0, 1000.0))
     rpy_deg: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_rng(-360.0, 360.0))
+    quat_xyzw: tuple[float, float, float, float] | None = field(default=None, metadata={
+        **_rng(-1.0, 1.0, doc="unit quaternion (x, y, z, w), instead of rpy_deg"), "omit_if_none": True})
+
+    def __post_init__(self) -> None:
+        if self.quat_xyzw is None:
+            return
+        if any(v != 0.0 for v in self.rpy_deg):
+            raise ValueError("give the rotation as rpy_deg or as quat_xyzw, not both")
+        norm = math.sqrt(sum(v * v for v in self.quat_xyzw))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"quat_xyzw: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
 
     def matrix(self) -> np.ndarray:
         """The (4, 4) pose."""
         from scipy.spatial.transform import Rotation
 
+        if self.quat_xyzw is not None:
+            q = np.asarray(self.quat_xyzw, dtype=float)
+            return se3.from_quat_xyzw(q / np.linalg.norm(q), np.asarray(self.xyz_m, dtype=float))
         R = Rotation.from_euler("xyz", self.rpy_deg, degrees=True).as_matrix()
         return se3.make_pose(R, np.asarray(self.xyz_m, dtype=float))
 
@@ -64,7 +86,8 @@ class ObjectConfig:
     name: str
     mesh: Path
     units: Literal["m", "mm"] = "m"
-    clearance_m: float = field(default=0.0003, metadata=_rng(0.0, 0.01, lo_open=True, doc="per-side clearance in the receptacle"))
+    clearance_m: float | None = field(default=None, metadata=_rng(0.0, 0.01, lo_open=True, doc=(
+        "per-side clearance in the receptacle; without it eval reports insertable as n/a")))
     insertion_depth_m: float = field(default=0.0, metadata=_rng(0.0, 0.2))
     symmetries: tuple[PoseSpec, ...] = field(
         default=(), metadata={"doc": "transforms S (besides the identity) with mesh == S applied to mesh"}
@@ -466,7 +489,10 @@ def _build(cls: type, data: Any, prefix: str, base: Path) -> Any:
             kwargs[name] = value
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise _Invalid(key, "missing required key")
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as err:  # a dataclass's own cross-field check (__post_init__)
+        raise _Invalid(prefix or "(top level)", str(err)) from None
 
 
 def _join(prefix: str, name: str) -> str:
@@ -553,7 +579,8 @@ def config_to_dict(cfg: Config, relative_to: Path | None = None) -> dict:
 
     def conv(v: Any) -> Any:
         if dataclasses.is_dataclass(v):
-            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v) if not f.metadata.get("internal")}
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v) if not f.metadata.get("internal")
+                    and not (f.metadata.get("omit_if_none") and getattr(v, f.name) is None)}
         if isinstance(v, tuple):
             return [conv(x) for x in v]
         if isinstance(v, dict):

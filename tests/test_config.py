@@ -3,11 +3,15 @@
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
-from mvtop_cli.config import FilterConfig, dump_config, load_config, parse_config
+from mvtop_cli.config import FilterConfig, PoseSpec, config_to_dict, dump_config, load_config, parse_config
 from mvtop_cli.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
 
 BASE = """
 object: {name: cube, mesh: cube.obj, clearance_m: 0.0003}
@@ -103,3 +107,34 @@ def test_bad_yaml_and_missing_file(cfg_dir):
         load_config(bad)
     with pytest.raises(ConfigError, match="config file not found"):
         load_config(cfg_dir / "nope.yaml")
+
+
+def test_pose_as_quaternion_equals_the_same_rotation_as_rpy(tmp_path):
+    """grasp_prior.pose (any PoseSpec) takes quat_xyzw (ROS order) instead of rpy_deg; rpy_deg is
+    extrinsic x-y-z, the matrix of tf2's setRPY: Rz(yaw) Ry(pitch) Rx(roll)."""
+    rpy = (20.0, -35.0, 110.0)
+    r, p, y = np.radians(rpy)
+    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    Rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    T_rpy = PoseSpec((0.01, 0.0, 0.02), rpy).matrix()
+    np.testing.assert_allclose(T_rpy[:3, :3], Rz @ Ry @ Rx, atol=1e-12)
+    q = Rotation.from_matrix(Rz @ Ry @ Rx).as_quat()  # x, y, z, w
+    data = yaml.safe_load((REPO / "configs" / "cube.yaml").read_text())
+    data["object"]["mesh"] = str(REPO / "configs" / "meshes" / "cube.obj")
+    for e in data["environment"]:
+        e["mesh"] = str(REPO / "configs" / e["mesh"])
+    data["grasp_prior"]["pose"] = {"xyz_m": [0.01, 0.0, 0.02], "quat_xyzw": [float(v) for v in q]}
+    cfg = parse_config(data, tmp_path / "q.yaml")
+    np.testing.assert_allclose(cfg.grasp_prior.pose.matrix(), T_rpy, atol=1e-12)
+    assert config_to_dict(cfg)["grasp_prior"]["pose"]["quat_xyzw"] == pytest.approx(list(q))
+    assert "quat_xyzw" not in config_to_dict(cfg)["environment"][0]["pose"]  # unset: not written
+    data["grasp_prior"]["pose"]["rpy_deg"] = [0, 0, 90]
+    with pytest.raises(ConfigError, match=r"grasp_prior\.pose: give the rotation as rpy_deg or as quat_xyzw, not both"):
+        parse_config(data, tmp_path / "q.yaml")
+    data["grasp_prior"]["pose"] = {"quat_xyzw": [0, 0, 0, 2]}
+    with pytest.raises(ConfigError, match=r"grasp_prior\.pose\.quat_xyzw\[3\]: expected a value <= 1.0"):
+        parse_config(data, tmp_path / "q.yaml")
+    data["grasp_prior"]["pose"] = {"quat_xyzw": [0, 0, 0.5, 0.5]}
+    with pytest.raises(ConfigError, match=r"grasp_prior\.pose: quat_xyzw: expected a unit quaternion"):
+        parse_config(data, tmp_path / "q.yaml")

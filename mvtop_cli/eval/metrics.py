@@ -287,24 +287,62 @@ def lateral_displacement(
     return _reduce_points(T_est, T_gt, points, symmetries, per_pose)
 
 
-def add_s(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, targets: np.ndarray | None = None) -> np.ndarray:
-    """Average closest-point distance [m], ``mean_p min_q ||T_est p - T_gt q||`` (ADD-S,
-    also ADI; Hinterstoisser et al. 2012, for symmetric objects; bop_toolkit ``adi``).
+def adi(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """ADD-S [m] exactly as bop_toolkit's ``pose_error.adi`` (Hinterstoisser et al. 2012,
+    "average distance for indistinguishable views"): the mean over the model points placed
+    by the truth of the distance to the nearest model point placed by the estimate,
+    ``mean_q min_p ||T_gt q - T_est p||`` over ``points`` (n, 3).
 
-    points : (n, 3) the points moved by the estimate. targets : (m, 3) the points ``q``
-    placed by the truth, default ``points``. The minimum is over a finite point set: to
-    make it vanish exactly for symmetric poses pass targets that the symmetries map onto
-    themselves (e.g. ``points`` transformed by every group element, stacked).
+    No symmetry list enters: the nearest-point matching is what makes it tolerate
+    symmetries (as in BOP, which passes no symmetries to ``adi``), and it is zero for an
+    exact symmetry only up to the spacing of the points. Computed in the estimate's object
+    frame, ``min_p ||(T_est^-1 T_gt) q - p||``, so one k-d tree over ``points`` serves
+    every pose.
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    tgt = pts if targets is None else np.asarray(targets, dtype=np.float64).reshape(-1, 3)
-    tree = cKDTree(tgt)
+    tree = cKDTree(pts)
     T_est, T_gt = _pair(T_est, T_gt)
     lead = T_est.shape[:-2]
-    D = (se3.invert(T_gt) @ T_est).reshape(-1, 4, 4)
-    moved = se3.transform_points(D, pts)  # (N, n, 3) in the truth's object frame
-    dist, _ = tree.query(moved.reshape(-1, 3))
-    return dist.reshape(len(D), len(pts)).mean(axis=-1).reshape(lead)
+    D = (se3.invert(T_est) @ T_gt).reshape(-1, 4, 4)
+    out = np.empty(len(D))
+    step = max(1, _CHUNK_ELEMENTS // max(1, len(pts)))
+    for i in range(0, len(D), step):
+        moved = se3.transform_points(D[i:i + step], pts)  # (c, n, 3) truth's points in the estimate's frame
+        dist, _ = tree.query(moved.reshape(-1, 3))
+        out[i:i + step] = dist.reshape(len(moved), len(pts)).mean(axis=-1)
+    return out.reshape(lead)
+
+
+def mspd(
+    T_cam_est: np.ndarray, T_cam_gt: np.ndarray, K: np.ndarray, points: np.ndarray, symmetries: np.ndarray | None = None
+) -> np.ndarray:
+    """Maximum symmetry-aware projection distance [px] as bop_toolkit's ``pose_error.mspd``
+    (Hodan et al. 2020, "BOP Challenge 2020", eq. 3): ``min_S max_p ||pi(T_cam_est p) -
+    pi(T_cam_gt S p)||`` with ``pi`` the pinhole projection by ``K`` (3, 3) of points in the
+    camera's optical frame (z forward), ``points`` (n, 3) the model vertices and ``S`` over
+    the symmetries (identity included; applied to the truth, as BOP does).
+
+    ``T_cam_est``, ``T_cam_gt`` (..., 4, 4) are object poses in the camera frame.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    group = _group(symmetries)
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    T_est, T_gt = _pair(T_cam_est, T_cam_gt)
+    lead = T_est.shape[:-2]
+    flat_est, flat_gt = T_est.reshape(-1, 4, 4), T_gt.reshape(-1, 4, 4)
+
+    def project(T: np.ndarray) -> np.ndarray:  # (..., 4, 4) -> (..., n, 2)
+        x = pts @ np.swapaxes(T[..., :3, :3], -1, -2) + T[..., None, :3, 3]
+        uvw = x @ K.T
+        return uvw[..., :2] / uvw[..., 2:3]
+
+    out = np.empty(len(flat_est))
+    step = max(1, _CHUNK_ELEMENTS // max(1, len(pts) * len(group)))
+    for i in range(0, len(flat_est), step):
+        p_est = project(flat_est[i:i + step])[:, None]  # (c, 1, n, 2)
+        p_gt = project(flat_gt[i:i + step, None] @ group)  # (c, m, n, 2)
+        out[i:i + step] = np.linalg.norm(p_est - p_gt, axis=-1).max(axis=-1).min(axis=-1)
+    return out.reshape(lead)
 
 
 def closest_symmetry(

@@ -17,7 +17,7 @@ TABLE_ROWS = (
     ("rotation_error_deg", "rotation error", "deg"),
     ("pose_error_mm", "pose error (mean bbox-corner distance, paper)", "mm"),
     ("add_mm", "ADD", "mm"),
-    ("add_s_mm", "ADD-S", "mm"),
+    ("adi_mm", "ADD-S (BOP adi)", "mm"),
     ("add_sym_mm", "ADD, min over symmetries", "mm"),
     ("mssd_mm", "MSSD", "mm"),
     ("insertion_error_mm", "insertion error (max lateral corner displacement)", "mm"),
@@ -102,8 +102,11 @@ def _table_rows(report: dict) -> tuple[tuple[str, str, str], ...]:
 def _final_rows(report: dict) -> list[list[str]]:
     f = report["final"]
     rows = [[label, _fmt(f.get(key)), unit] for key, label, unit in _table_rows(report)]
+    rows += [[f"MSPD, camera {cam}", _fmt(v), "px"] for cam, v in (f.get("mspd_px") or {}).items()]
     rows.append(["clearance (per side)", _fmt(f.get("clearance_mm")), "mm"])
-    rows.append(["**insertable**", "**" + _fmt(bool(f.get("insertable"))) + "**", ""])
+    ins = f.get("insertable")
+    verdict = "n/a (no clearance configured)" if ins is None else _fmt(bool(ins))
+    rows.append(["**insertable**", f"**{verdict}**", ""])
     rows.append(["NEES (full covariance)", _fmt(f.get("nees")), f"95 % bound {_fmt(f.get('nees_bound'), 2)}"])
     rows.append(["NEES within bound", _fmt(bool(f.get("nees_within_bound"))), ""])
     return rows
@@ -161,7 +164,9 @@ def render_markdown(report: dict) -> str:
         "",
         _md_table(["metric", "unit", "median", "p95", "max"], _frame_rows(report)),
         "",
-        f"Insertable in {_fmt(100 * fr['insertable_fraction'], 1)} % of frames; NEES within the 95 % chi-square bound "
+        (f"Insertable in {_fmt(100 * fr['insertable_fraction'], 1)} % of frames; "
+         if fr["insertable_fraction"] is not None else "Insertable: n/a (no clearance configured); ")
+        + f"NEES within the 95 % chi-square bound "
         f"({_fmt(report['final']['nees_bound'], 2)}, 6 dof) in {_fmt(100 * fr['nees_within_bound_fraction'], 1)} % of frames. "
         f"Per-frame NEES uses a {fr['nees_covariance']}.",
         "",
@@ -304,7 +309,8 @@ def render_html(report: dict) -> str:
          ("insertion error", [r["insertion_error_mm"] for r in pf], False),
          ("σ translation", [r["std_translation_mm"] for r in pf], True)],
         title="Distance errors over time", xlabel="time since first frame [s]", ylabel="error [mm]",
-        hlines=[(f"clearance {_fmt(report['clearance_mm'])} mm", report["clearance_mm"])],
+        hlines=([(f"clearance {_fmt(report['clearance_mm'])} mm", report["clearance_mm"])]
+                if report["clearance_mm"] is not None else []),
     )
     rot = svg_log_plot(
         t,
@@ -317,7 +323,8 @@ def render_html(report: dict) -> str:
         title="NEES over time", xlabel="time since first frame [s]", ylabel="NEES",
         hlines=[(f"95 % bound {_fmt(f['nees_bound'], 2)}", f["nees_bound"])],
     )
-    verdict = ('<span class="ok">insertable</span>' if f["insertable"] else '<span class="bad">not insertable</span>')
+    verdict = ("insertable: n/a (no clearance configured)" if f["insertable"] is None else
+               '<span class="ok">insertable</span>' if f["insertable"] else '<span class="bad">not insertable</span>')
     header, body, note = _per_frame_table(report)
     fr = report["frames"]
     return "\n".join([

@@ -436,6 +436,37 @@ class FrameReader:
         i = int(np.searchsorted(np.asarray(stamps), t_ns, side="right")) - 1
         return cams[max(i, 0)]
 
+    def load(self) -> None:
+        """Read TF, contact, joint states, ground truth and calibrations (pass 1) now
+        instead of at the first frame; the accessors below need it."""
+        if not self._loaded:
+            self._load_context()
+
+    def ground_truth_at(self, t_ns: int) -> np.ndarray | None:
+        """Ground-truth ``T_world_object`` (4, 4) at ``t_ns``, interpolated and converted
+        from the ground truth's own frame into the world frame through TF (the same as the
+        frames' ``T_world_object_gt``); None where the messages (within the sync tolerance)
+        or TF do not cover ``t_ns``."""
+        self.load()
+        return self._gt_at(int(t_ns))
+
+    @property
+    def ground_truth_frame(self) -> str | None:
+        """``header.frame_id`` of the ground-truth messages (None without any)."""
+        self.load()
+        return self._gt_frame
+
+    def camera_at(self, sensor: str, t_ns: int) -> PinholeCamera:
+        """The calibration of ``sensor`` in force at ``t_ns``, as the log recorded it."""
+        self.load()
+        return self._camera_at(sensor, int(t_ns))
+
+    def sensor_frame(self, sensor: str) -> str | None:
+        """The TF frame of ``sensor``'s images: the configured one, else its CameraInfo's."""
+        self.load()
+        s = next(s for s in self.sensors if s.name == sensor)
+        return s.frame_id or self._info_frame.get(sensor)
+
     def _gt_at(self, t_ns: int) -> np.ndarray | None:
         gt = self._gt
         if gt is None or not gt.covers(t_ns, self.topics.sync_tolerance_ns):

@@ -5,7 +5,10 @@ message indexes tell which chunks hold which topics and when; without one (a rec
 that was killed, a writer that skips the summary) the file is scanned once, linearly,
 to build the same index in memory (offsets and times only). Messages are then read
 chunk by chunk and merged into log-time order with a heap, so only the chunks that
-overlap in time are in memory at once.
+overlap in time are in memory at once. rosbag2's own compression is undone too: per
+message (each message's data a zstd frame) as each message is read, per file
+(``NAME.mcap.zstd``) by streaming the file into a temporary folder that ``close()``
+removes (bag_compression.py).
 
 Every failure is a LogError with one line naming the file and what was expected;
 third-party exceptions are wrapped here, once.
@@ -17,7 +20,9 @@ import contextlib
 import heapq
 import io
 import re
+import shutil
 import struct
+import tempfile
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -31,6 +36,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Footer, Header, Schema, Statistics
 
 from ..errors import LogError
+from .bag_compression import decompress_file, decompress_message, file_compression, message_compression
 from .ros2_msgs import MESSAGE_TYPES, normalize_type, schema_mismatch
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -76,6 +82,7 @@ class LogSummary:
     compression: tuple[str, ...]
     indexed: bool
     truncated_at: tuple[Path, int] | None = None
+    bag_compression: str | None = None  # rosbag2's own: "zstd per message", "zstd per file" (bag_compression.py)
 
     @property
     def duration_s(self) -> float:
@@ -170,8 +177,8 @@ def _iter_records(data: bytes | memoryview) -> Iterator[tuple[int, int, memoryvi
 class _McapFile:
     """One .mcap file: header, schemas, channels, per-channel statistics and a block index."""
 
-    def __init__(self, path: Path, allow_truncated: bool):
-        self.path = path
+    def __init__(self, path: Path, allow_truncated: bool, source: Path | None = None):
+        self.path = source or path  # named in errors: the bag's file, not a decompressed copy
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.stats: dict[int, _ChannelStats] = {}
@@ -182,7 +189,7 @@ class _McapFile:
         try:
             self._fh = open(path, "rb")
         except OSError as err:
-            raise LogError(f"{path}: cannot open ({err.strerror or err})") from err
+            raise LogError(f"{self.path}: cannot open ({err.strerror or err})") from err
         try:
             self.size = self._fh.seek(0, io.SEEK_END)
             self._open(allow_truncated)
@@ -527,11 +534,6 @@ def bag_files(path: str | Path) -> list[Path]:
         storage = info.get("storage_identifier", "mcap")
         if storage != "mcap":
             raise LogError(f"{meta}: bag storage is {storage!r} (expected 'mcap')")
-        if str(info.get("compression_mode", "") or "").upper() == "FILE":
-            raise LogError(
-                f"{meta}: the bag's files are compressed whole ({info.get('compression_format')}); "
-                "expected plain .mcap files (decompress the bag first)"
-            )
         names = info.get("relative_file_paths") or [f["path"] for f in info.get("files", [])]
         files = [p / n for n in names]
         missing = [f.name for f in files if not f.is_file()]
@@ -545,6 +547,31 @@ def bag_files(path: str | Path) -> list[Path]:
     return files
 
 
+def bag_compression(path: str | Path) -> str | None:
+    """rosbag2's compression of a bag folder per its metadata.yaml (``"zstd per message"``,
+    ``"zstd per file"``), or of a single whole-file compressed file by its suffix; None
+    for plain bags and single .mcap files (their per-message compression, if any, is
+    recognised message by message when reading)."""
+    p = Path(path)
+    if p.is_file() and p.name == "metadata.yaml":
+        p = p.parent
+    if p.is_file():
+        kind = file_compression(p)
+        return f"{kind} per file" if kind else None
+    meta = p / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    import yaml
+
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+    except Exception:  # bag_files() has already named the problem
+        return None
+    mode = str(info.get("compression_mode", "") or "").upper()
+    fmt = str(info.get("compression_format", "") or "zstd")
+    return {"MESSAGE": f"{fmt} per message", "FILE": f"{fmt} per file"}.get(mode)
+
+
 class McapLog:
     """A ROS 2 MCAP log: one .mcap file or a rosbag2 bag folder read as one log.
 
@@ -556,14 +583,34 @@ class McapLog:
     def __init__(self, path: str | Path, *, allow_truncated: bool = False):
         self.path = Path(path)
         self._files: list[_McapFile] = []
+        self._tmpdir: Path | None = None  # decompressed copies of whole-file compressed bag files
         try:
             for f in bag_files(self.path):
-                self._files.append(_McapFile(f, allow_truncated))
+                if file_compression(f):
+                    if self._tmpdir is None:
+                        self._tmpdir = Path(tempfile.mkdtemp(prefix="mvtop-bag-"))
+                    self._files.append(_McapFile(decompress_file(f, self._tmpdir), allow_truncated, source=f))
+                else:
+                    self._files.append(_McapFile(f, allow_truncated))
+            self._bag_compression = bag_compression(self.path) or self._sniff_message_compression()
         except BaseException:
             self.close()
             raise
         self._decoders: dict[tuple[int, int], Callable[[bytes], Any]] = {}
         self._summary: LogSummary | None = None
+
+    def _sniff_message_compression(self) -> str | None:
+        """``"zstd per message"`` when the log's first message is a compressed frame (a
+        message-compressed bag file without its metadata.yaml), else None."""
+        f = self._files[0] if self._files else None
+        if f is None or not f.blocks:
+            return None
+        try:
+            first = next(f._block_messages(min(f.blocks, key=lambda b: b.start_ns)), None)
+        except LogError:  # reported where the messages are read
+            return None
+        kind = message_compression(first[3]) if first is not None else None
+        return f"{kind} per message" if kind else None
 
     def __enter__(self) -> McapLog:
         return self
@@ -574,6 +621,9 @@ class McapLog:
     def close(self) -> None:
         for f in self._files:
             f.close()
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
 
     @property
     def files(self) -> tuple[Path, ...]:
@@ -632,6 +682,7 @@ class McapLog:
             compression=tuple(sorted(set().union(*(f.compressions for f in self._files)))),
             indexed=all(f.indexed for f in self._files),
             truncated_at=truncated,
+            bag_compression=self._bag_compression,
         )
         return self._summary
 
@@ -745,6 +796,8 @@ class McapLog:
                 )
             schema = f.schemas.get(ch.schema_id)
             type_name = schema.name if schema else ""
+            if data[:1] != b"\x00":  # not a CDR encapsulation header: rosbag2 per-message compression?
+                data = decompress_message(data, f"{f.path}: message on topic {ch.topic!r} at log time {log_time} ns")
             msg: Any = data
             if decode:
                 decoder = self._decoder(fi, ch)

@@ -72,6 +72,10 @@ class _Cdr:
         self._align(4)
         self.buf += struct.pack("<i", int(v))
 
+    def f32(self, v: float) -> None:
+        self._align(4)
+        self.buf += struct.pack("<f", float(v))
+
     def f64(self, v: float) -> None:
         self._align(8)
         self.buf += struct.pack("<d", float(v))
@@ -422,3 +426,54 @@ class LogWriter:
                 c.quat(q)
 
         self._write(topic, rm.POSE_ARRAY, fill, stamp_ns if log_time_ns is None else log_time_ns)
+
+    def write_triangle_marker(
+        self,
+        topic: str,
+        triangles: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        *,
+        rgba: Sequence[float] = (0.2, 0.6, 1.0, 0.8),
+        ns: str = "",
+        marker_id: int = 0,
+        frame_locked: bool = True,
+        log_time_ns: int | None = None,
+    ) -> None:
+        """A visualization_msgs/Marker TRIANGLE_LIST of ``triangles`` (k, 3, 3) [m] in
+        ``frame_id`` (identity pose, unit scale, one colour, no lifetime: it stays until
+        replaced); ``frame_locked`` makes viewers move it with ``frame_id`` as TF changes."""
+        tri = np.ascontiguousarray(np.asarray(triangles, dtype="<f8").reshape(-1, 3))
+        if not np.all(np.isfinite(tri)):
+            raise ValueError(f"marker on {topic}: triangle corners must be finite")
+
+        def fill(c: _Cdr) -> None:
+            c.header(stamp_ns, frame_id)
+            c.string(ns)
+            c.i32(marker_id)
+            c.i32(11)  # TRIANGLE_LIST
+            c.i32(0)  # ADD
+            c.pose(np.eye(4))
+            c.vec3((1.0, 1.0, 1.0))
+            for v in rgba:
+                c.f32(v)
+            c.i32(0)  # lifetime: forever
+            c.u32(0)
+            c.boolean(frame_locked)
+            c.u32(len(tri))
+            if len(tri):
+                c._align(8)
+                c.buf += tri.tobytes()
+            c.u32(0)  # colors
+            c.string("")  # texture_resource
+            c.header(0, "")  # texture: an empty CompressedImage
+            c.string("")
+            c.u32(0)
+            c.u32(0)  # uv_coordinates
+            c.string("")  # text
+            c.string("")  # mesh_resource
+            c.string("")  # mesh_file.filename
+            c.u32(0)  # mesh_file.data
+            c.boolean(False)  # mesh_use_embedded_materials
+
+        self._write(topic, rm.MARKER, fill, stamp_ns if log_time_ns is None else log_time_ns)

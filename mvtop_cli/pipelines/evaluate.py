@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ NEES_PROBABILITY = 0.95
 # spread a particle filter reports, it only keeps a collapsed set (zero variance) from
 # dividing by zero: such a set gets a huge, finite NEES, which is what it deserves.
 COVARIANCE_FLOOR = np.array([1e-12] * 3 + [1e-12] * 3)
-SURFACE_SAMPLES = 1000  # ADD / ADD-S points; ~1 mm spacing on a connector, < 1 % noise in the mean
+SURFACE_SAMPLES = 1000  # ADD / ADI points; ~1 mm spacing on a connector, < 1 % noise in the mean
 SAMPLE_SEED = 0
 BOP_SCENE_ID = 0
 BOP_OBJ_ID = 1
@@ -206,45 +207,112 @@ def read_gt_file(path: Path) -> np.ndarray:
     return se3.from_quat_xyzw(q / np.linalg.norm(q), values["translation_m"])
 
 
-def ground_truth_from_log(log_path: Path, topic: str | None, world_frame: str, stamps_ns: np.ndarray, tolerance_ns: int) -> np.ndarray:
+def ground_truth_from_log(log_path: Path, config: Config, stamps_ns: np.ndarray) -> tuple[np.ndarray, dict]:
     """Ground-truth ``T_world_object`` (N, 4, 4) at ``stamps_ns``, interpolated between the
-    log's PoseStamped messages on ``topic``; NaN where the messages do not cover a stamp
-    (within ``tolerance_ns``). LogError if the log has no ground truth."""
+    log's PoseStamped messages on the config's ground-truth topic; NaN where the messages do
+    not cover a stamp (within the sync tolerance). Messages in another frame than the world
+    are converted through the log's TF at each stamp, as ``estimate`` does (NaN where TF does
+    not cover it). Also ``{"frame": the messages' frame, "cameras": {name: (K (N, 3, 3),
+    T_world_camera (N, 4, 4))}}``, the calibrations and camera poses MSPD needs (empty when
+    the log has no TF or camera topics). LogError if the log has no ground truth."""
     from ..io import ros2_msgs as rm
     from ..io.frames import header_stamp_ns
     from ..io.mcap_reader import McapLog
     from ..io.tf_buffer import PoseSeries
 
+    topic = config.topics.ground_truth
+    world = config.frames.world
+    tol = int(round(config.sync_tolerance_s * 1e9))
     hint = "pass --gt FILE with the nominal final world pose to evaluate without it"
+    n = len(stamps_ns)
     with McapLog(log_path) as log:
         summary = log.summary()
         if topic is None or not summary.has_topic(topic):
             raise LogError(
                 f"{log_path}: no ground truth: topic {topic!r} not found (expected geometry_msgs/msg/PoseStamped "
-                f"in {world_frame!r}); {hint}"
+                f"in {world!r} or a frame TF connects to it); {hint}"
             )
         info = summary.topic(topic)
         if rm.normalize_type(info.type) != rm.normalize_type(rm.POSE_STAMPED):
             raise LogError(f"{log_path}: topic {topic!r} has type {info.type!r} (expected {rm.POSE_STAMPED})")
-        t, v = [], []
+        t, v, frame = [], [], None
         for m in log.messages(topic):
-            frame = str(m.msg.header.frame_id).lstrip("/")
-            if frame != world_frame:
+            f = str(m.msg.header.frame_id).lstrip("/")
+            if frame is None:
+                frame = f
+            elif f != frame:
                 raise LogError(
-                    f"{log_path}: ground truth on {topic!r} at log time {m.log_time_ns} ns is in frame {frame!r} "
-                    f"(expected {world_frame!r})"
+                    f"{log_path}: ground truth on {topic!r} changes frame from {frame!r} to {f!r} at log time "
+                    f"{m.log_time_ns} ns (expected one frame)"
                 )
             p, q = m.msg.pose.position, m.msg.pose.orientation
             t.append(header_stamp_ns(m.msg, m.log_time_ns))
             v.append([p.x, p.y, p.z, q.x, q.y, q.z, q.w])
-    if not t:
-        raise LogError(f"{log_path}: no ground truth: topic {topic!r} has no messages; {hint}")
-    v = np.asarray(v, dtype=np.float64)
-    series = PoseSeries(np.asarray(t, dtype=np.int64), v[:, :3], v[:, 3:] / np.linalg.norm(v[:, 3:], axis=1, keepdims=True))
-    out = np.full((len(stamps_ns), 4, 4), np.nan)
-    for i, s in enumerate(stamps_ns):
-        if series.covers(int(s), tolerance_ns):
-            out[i] = series.at(int(s))
+        if not t:
+            raise LogError(f"{log_path}: no ground truth: topic {topic!r} has no messages; {hint}")
+        reader = _tf_reader(log, config)
+        if frame != world and reader is None:
+            raise LogError(
+                f"{log_path}: ground truth on {topic!r} is in frame {frame!r}; expected {world!r}, or TF "
+                f"({config.topics.tf!r}, {config.topics.tf_static!r}) and the configured sensors' topics to convert it"
+            )
+        out = np.full((n, 4, 4), np.nan)
+        if frame == world:
+            v = np.asarray(v, dtype=np.float64)
+            series = PoseSeries(np.asarray(t, dtype=np.int64), v[:, :3],
+                                v[:, 3:] / np.linalg.norm(v[:, 3:], axis=1, keepdims=True))
+            for i, s in enumerate(stamps_ns):
+                if series.covers(int(s), tol):
+                    out[i] = series.at(int(s))
+        else:
+            for i, s in enumerate(stamps_ns):
+                T = reader.ground_truth_at(int(s))
+                if T is not None:
+                    out[i] = T
+        cameras = _camera_poses(reader, config, stamps_ns) if reader is not None else {}
+    return out, {"frame": frame, "cameras": cameras}
+
+
+def _tf_reader(log, config: Config):
+    """A FrameReader over the log's TF, ground truth and calibrations (every configured
+    sensor whose image and CameraInfo topics hold messages), or None when the log has no
+    TF or no such sensor."""
+    from dataclasses import replace
+
+    from ..config import MODALITIES
+    from ..io.frames import FrameReader
+    from .estimate import log_topics, sensor_topics
+
+    summary = log.summary()
+
+    def has(topic: str | None) -> bool:
+        return topic is not None and summary.has_topic(topic) and summary.topic(topic).message_count > 0
+
+    if not (has(config.topics.tf) or has(config.topics.tf_static)):
+        return None
+    every = sensor_topics(replace(config, modalities=MODALITIES))
+    sensors = [s for s in every if has(s.image_topic) and has(s.info_topic)]
+    if not sensors:
+        return None
+    return FrameReader(log, sensors, log_topics(config))
+
+
+def _camera_poses(reader, config: Config, stamps_ns: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per camera the reader knows: K (N, 3, 3) and ``T_world_camera`` (N, 4, 4) at the stamps (NaN off TF)."""
+    out = {}
+    names = {s.name for s in reader.sensors if s.modality == "camera"}
+    for c in config.sensors.cameras:
+        if c.name not in names:
+            continue
+        frame = reader.sensor_frame(c.name)
+        K = np.stack([reader.camera_at(c.name, int(s)).K for s in stamps_ns])
+        T_world_cam = np.full((len(stamps_ns), 4, 4), np.nan)
+        for i, s in enumerate(stamps_ns):
+            try:
+                T_world_cam[i] = reader.tf.lookup(config.frames.world, frame, int(s))
+            except LogError:  # TF does not cover this stamp: no MSPD for this frame
+                pass
+        out[c.name] = (K, T_world_cam)
     return out
 
 
@@ -256,20 +324,19 @@ class ObjectModel:
     """What the metrics need of the object, in its own frame [m].
 
     ``vertices`` the convex-hull vertices (exact for MSSD's maximum); ``samples`` points
-    spread uniformly over the surface (ADD, ADD-S) and ``sample_targets`` the same moved by
-    every symmetry (ADD-S targets); ``corners`` the bounding box (8, 3); ``insertion_corners``
+    spread uniformly over the surface (ADD, ADI); ``corners`` the bounding box (8, 3); ``insertion_corners``
     the bounding box of the part within ``insertion_depth_m`` of the leading face;
     ``group`` the symmetry group (m, 4, 4), identity first.
     """
 
     name: str
     vertices: np.ndarray
+    mesh_vertices: np.ndarray
     samples: np.ndarray
-    sample_targets: np.ndarray
     corners: np.ndarray
     insertion_corners: np.ndarray
     group: np.ndarray
-    clearance_m: float
+    clearance_m: float | None  # None: not configured, "insertable" is n/a
     insertion_depth_m: float
 
 
@@ -302,14 +369,13 @@ def object_model(cfg: Config) -> ObjectModel:
     except ValueError as err:
         raise ConfigError(f"{cfg.source}: object.symmetries: {err}") from None
     samples = sample_surface(V, mesh.faces, SURFACE_SAMPLES, np.random.default_rng(SAMPLE_SEED))
-    targets = se3.transform_points(group, samples).reshape(-1, 3)
     lo, hi = V.min(axis=0), V.max(axis=0)
     # The leading face is the object's lowest z (frames.md: +z points away from the
     # receptacle); a zero depth still checks that face.
     z_cut = lo[2] + max(obj.insertion_depth_m, 1e-9)
     ilo, ihi = M.clipped_bounds(V, mesh.edges_unique, min(z_cut, hi[2]))
     return ObjectModel(
-        name=obj.name, vertices=hull, samples=samples, sample_targets=targets, corners=M.box_corners(lo, hi),
+        name=obj.name, vertices=hull, mesh_vertices=V, samples=samples, corners=M.box_corners(lo, hi),
         insertion_corners=M.box_corners(ilo, ihi), group=group, clearance_m=obj.clearance_m,
         insertion_depth_m=obj.insertion_depth_m,
     )
@@ -345,18 +411,42 @@ def score_poses(
         "pose_error_nosym_m": M.pose_error_bbox(T_est, T_gt, model.corners),
         "add_m": M.add(T_est, T_gt, model.samples),
         "add_sym_m": M.add(T_est, T_gt, model.samples, G),
-        "add_s_m": M.add_s(T_est, T_gt, model.samples, model.sample_targets),
+        "adi_m": M.adi(T_est, T_gt, model.samples),
         "mssd_m": M.mssd(T_est, T_gt, model.vertices, G),
         "insertion_error_m": M.lateral_displacement(T_est, T_gt, model.insertion_corners, (0, 0, 1), G),
         "symmetry_index": k,
     }
-    out["add_or_add_s_m"] = out["add_s_m"] if sym else out["add_m"]
-    out["insertable"] = out["insertion_error_m"] <= model.clearance_m
+    out["add_or_adi_m"] = out["adi_m"] if sym else out["add_m"]
+    if model.clearance_m is None:  # no clearance configured: not decidable
+        out["insertable"] = np.full(len(out["insertion_error_m"]), None, dtype=object)
+    else:
+        out["insertable"] = out["insertion_error_m"] <= model.clearance_m
     if covariance_ee is not None:
         T_ee_gt = se3.invert(T_world_ee) @ T_gt
         e = M.tangent_error(T_ee_est @ G[k], T_ee_gt)
         P = M.shift_covariance(covariance_ee, T_ee_est, G[k]) + np.diag(COVARIANCE_FLOOR)
         out["nees"] = M.nees(e, P)
+    return out
+
+
+def mspd_per_camera(model: ObjectModel, T_world_est: np.ndarray, T_world_gt: np.ndarray,
+                    cameras: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
+    """MSPD [px] (BOP, ``metrics.mspd``) per camera and frame: the object poses moved into
+    each camera's optical frame, ``T_camera_object = T_world_camera^-1 T_world_object``, and
+    projected with that frame's calibration ``K``; NaN where the truth or TF is missing or a
+    model vertex is behind the camera. ``cameras`` as ``ground_truth_from_log`` returns it."""
+    out = {}
+    for name, (K, T_world_cam) in cameras.items():
+        vals = np.full(len(T_world_est), np.nan)
+        ok = ~(np.isnan(T_world_gt).any(axis=(1, 2)) | np.isnan(T_world_cam).any(axis=(1, 2)))
+        for i in np.flatnonzero(ok):
+            T_cam_world = se3.invert(T_world_cam[i])
+            T_est, T_gt = T_cam_world @ T_world_est[i], T_cam_world @ T_world_gt[i]
+            z = np.concatenate([se3.transform_points(T, model.mesh_vertices)[..., 2].ravel()
+                                for T in (T_est, T_gt @ model.group)])
+            if np.all(z > 0):
+                vals[i] = float(M.mspd(T_est, T_gt, K[i], model.mesh_vertices, model.group))
+        out[name] = vals
     return out
 
 
@@ -378,8 +468,8 @@ _METRICS = (
     ("pose_error_nosym_mm", "pose_error_nosym_m", 1e3),
     ("add_mm", "add_m", 1e3),
     ("add_sym_mm", "add_sym_m", 1e3),
-    ("add_s_mm", "add_s_m", 1e3),
-    ("add_or_add_s_mm", "add_or_add_s_m", 1e3),
+    ("adi_mm", "adi_m", 1e3),
+    ("add_or_adi_mm", "add_or_adi_m", 1e3),
     ("mssd_mm", "mssd_m", 1e3),
     ("insertion_error_mm", "insertion_error_m", 1e3),
 )
@@ -388,7 +478,8 @@ METRIC_NAMES = tuple(m[0] for m in _METRICS)
 
 def _row(scores: dict[str, np.ndarray], i: int) -> dict[str, Any]:
     row: dict[str, Any] = {name: float(scores[key][i] * f) for name, key, f in _METRICS}
-    row["insertable"] = bool(scores["insertable"][i])
+    ok = scores["insertable"][i]
+    row["insertable"] = None if ok is None else bool(ok)
     row["symmetry_index"] = int(scores["symmetry_index"][i])
     return row
 
@@ -397,14 +488,35 @@ def _nees_block(value: float, bound: float) -> dict[str, Any]:
     return {"nees": float(value), "nees_bound": bound, "nees_within_bound": bool(value <= bound)}
 
 
-def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None) -> dict:
+BOP_NAME = re.compile(r"^[A-Za-z0-9]+(?:-[A-Za-z0-9]+)*_[A-Za-z0-9]+-[A-Za-z0-9]+(?:-[A-Za-z0-9]+)?$")
+
+
+def bop_csv_name(name: str | None) -> str:
+    """The BOP CSV's file name: ``estimates_bop.csv``, or ``NAME.csv`` for a BOP result name
+    ``METHOD_DATASET-SPLIT[-SPLITTYPE]`` (bop_toolkit's scripts split the file name at the
+    first ``_`` and the rest at ``-``: no ``_`` in the method, none in dataset or split)."""
+    if name is None:
+        return "estimates_bop.csv"
+    stem = name[:-4] if name.endswith(".csv") else name
+    if not BOP_NAME.match(stem):
+        raise MvtopError(
+            f"--bop-name {name!r}: expected METHOD_DATASET-SPLIT as bop_toolkit names results "
+            "(e.g. mvtop_mydataset-test; letters, digits and '-' in the method, no '_' or '-' in dataset and split)"
+        )
+    return stem + ".csv"
+
+
+def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: Path, config: Config | None = None,
+             bop_name: str | None = None) -> dict:
     """Score the track in ``track_dir`` against the ground truth of ``log`` (or the final
     pose in ``gt_file``, which wins when both are given) and write report.json,
     report.md, report.html and estimates_bop.csv into ``out_dir``; returns the report
     (the content of report.json).
 
-    ``config`` defaults to ``track_dir/config.resolved.yaml``.
+    ``config`` defaults to ``track_dir/config.resolved.yaml``. ``bop_name`` names the BOP
+    CSV as bop_toolkit expects results to be named (:func:`bop_csv_name`).
     """
+    bop_file = bop_csv_name(bop_name)
     track_dir = Path(track_dir)
     track = read_track(track_dir)
     if config is None:
@@ -414,6 +526,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         config = load_config(cfg_path)
     model = object_model(config)
     T_gt, gt_info = _ground_truth(track, log, gt_file, config)
+    mspd = mspd_per_camera(model, track.T_world_object, T_gt, gt_info.pop("_cameras", {}))
     n = len(track.stamps_ns)
     idx = np.flatnonzero(~np.isnan(T_gt).any(axis=(1, 2)))
     T_world_ee = track.T_world_ee
@@ -437,11 +550,13 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
             "std_translation_mm": float(track.std_translation_m[i] * 1e3),
             "std_rotation_deg": float(np.degrees(track.std_rotation_rad[i])),
             **_nees_block(scores["nees"][j], bound),
+            **({"mspd_px": {c: float(v[i]) for c, v in mspd.items()}} if mspd else {}),
         })
     final = {
         **when(n - 1), **_row(final_scores, 0),
-        "clearance_mm": model.clearance_m * 1e3,
+        "clearance_mm": _mm(model.clearance_m),
         **_nees_block(final_scores["nees"][0], bound),
+        **({"mspd_px": {c: float(v[-1]) for c, v in mspd.items()}} if mspd else {}),
         "nees_covariance": "summary.json final.covariance_ee (full 6x6)",
         "T_world_object_estimate": _pose_dict(track.T_world_object[-1]),
         "T_world_object_truth": _pose_dict(T_gt[-1]),
@@ -450,26 +565,29 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "count": n,
         "with_truth": int(len(idx)),
         **{name: _stats([r[name] for r in per_frame]) for name in METRIC_NAMES},
-        "insertable_fraction": float(np.mean([r["insertable"] for r in per_frame])),
+        "insertable_fraction": (None if model.clearance_m is None
+                                else float(np.mean([r["insertable"] for r in per_frame]))),
         "nees": _stats(scores["nees"]),
         "nees_within_bound_fraction": float(np.mean(scores["nees"] <= bound)),
         "nees_covariance": "diagonal approximation from track.csv's std_translation_m and std_rotation_deg "
                            "(per-frame full covariances are not in track.csv)",
     }
+    if mspd:
+        frames_block["mspd_px"] = {c: _stats(v[idx]) for c, v in mspd.items()}
     summary_keys = ("log", "modalities", "particles", "seed", "frames_processed", "time_per_frame_s")
     report = _json_safe({
         "schema": REPORT_SCHEMA,
         "track_dir": str(track_dir),
         "object": model.name,
         "symmetries": int(len(model.group) - 1),
-        "clearance_mm": model.clearance_m * 1e3,
+        "clearance_mm": _mm(model.clearance_m),
         "insertion_depth_mm": model.insertion_depth_m * 1e3,
         "ground_truth": gt_info,
         "estimate": {k: track.summary.get(k) for k in summary_keys},
         "final": final,
         "frames": frames_block,
         "per_frame": per_frame,
-        "files": {"bop_csv": "estimates_bop.csv", "markdown": "report.md", "html": "report.html"},
+        "files": {"bop_csv": bop_file, "markdown": "report.md", "html": "report.html"},
     })
     write_report(report, track, Path(out_dir))
     return report
@@ -486,13 +604,19 @@ def _ground_truth(track: Track, log: Path | None, gt_file: Path | None, config: 
         raise MvtopError("no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose")
     topic = config.topics.ground_truth
     tol = int(round(config.sync_tolerance_s * 1e9))
-    T_gt = ground_truth_from_log(Path(log), topic, config.frames.world, track.stamps_ns, tol)
+    T_gt, extra = ground_truth_from_log(Path(log), config, track.stamps_ns)
     if np.isnan(T_gt[-1]).any():
         raise LogError(
             f"{log}: ground truth on {topic!r} does not cover the final frame (stamp {int(track.stamps_ns[-1])} ns, "
-            f"tolerance {tol} ns); expected the log the track was estimated from"
+            f"tolerance {tol} ns; its frame {extra['frame']!r} must connect to {config.frames.world!r} in TF then); "
+            "expected the log the track was estimated from"
         )
-    return T_gt, {"source": "log", "log": str(log), "topic": topic, "frames": "all", "interpolated": True}
+    return T_gt, {"source": "log", "log": str(log), "topic": topic, "frame": extra["frame"], "frames": "all",
+                  "interpolated": True, "_cameras": extra["cameras"]}
+
+
+def _mm(value_m: float | None) -> float | None:
+    return None if value_m is None else value_m * 1e3
 
 
 def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -555,9 +679,9 @@ def aggregate(reports: list[dict]) -> dict:
 
     def block(items: list[dict]) -> dict:
         out: dict[str, Any] = {"runs": len(items)}
-        ok = [bool(f["insertable"]) for f in items]
-        out["successes"] = int(sum(ok))
-        out["success_rate"] = float(np.mean(ok))
+        ok = [bool(f["insertable"]) for f in items if f["insertable"] is not None]  # None: no clearance configured
+        out["successes"] = int(sum(ok)) if ok else None
+        out["success_rate"] = float(np.mean(ok)) if ok else None
         for name in METRIC_NAMES:
             vals = [f[name] for f in items if f.get(name) is not None]
             out[name] = _stats(vals)

@@ -170,7 +170,9 @@ def format_report(report: InspectReport) -> str:
         lines.append(f"files:       {len(s.files)} ({', '.join(f.name for f in s.files)})")
     lines += [
         f"profile:     {s.profile or '-'}  (written by {s.library or 'unknown'})",
-        f"compression: {', '.join(s.compression) or '-'}" + ("" if s.indexed else "  (no summary section: scanned)"),
+        f"compression: {', '.join(s.compression) or '-'}"
+        + (f" (chunks); {s.bag_compression} (rosbag2)" if s.bag_compression else "")
+        + ("" if s.indexed else "  (no summary section: scanned)"),
         f"messages:    {s.message_count} on {len(s.topics)} topics",
         f"start:       {_time(s.start_ns)}",
         f"end:         {_time(s.end_ns)}",

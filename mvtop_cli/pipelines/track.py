@@ -13,6 +13,7 @@ from ..filter.health import count_warnings, sensor_report, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.mcap_writer import LogWriter
+from ..io.track_scene import object_triangles, write_track_scene
 
 
 def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped,
@@ -91,6 +92,9 @@ def track_csv_row(r: FrameEstimate) -> str:
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
     """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
     with LogWriter(out_dir / "track.mcap") as w:
+        write_track_scene(w, [r.stamp_ns for r in results], np.stack([r.T_world_object for r in results]),
+                          np.stack([r.T_ee_object for r in results]),
+                          object_triangles(cfg.object.mesh, cfg.object.units), cfg.frames.world, cfg.frames.ee)
         for r in results:
             w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
             w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)

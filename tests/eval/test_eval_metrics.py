@@ -42,7 +42,7 @@ def test_one_millimetre_translation_is_one_millimetre_everywhere(cube_group):
         M.translation_error(T_est, T_gt),
         M.pose_error_bbox(T_est, T_gt, CUBE),
         M.add(T_est, T_gt, CUBE),
-        M.add_s(T_est, T_gt, CUBE),  # corners are 25 mm apart: the nearest is the own corner
+        M.adi(T_est, T_gt, CUBE),  # corners are 25 mm apart: the nearest is the own corner
         M.mssd(T_est, T_gt, CUBE),
         M.mssd(T_est, T_gt, CUBE, cube_group),
         M.add(T_est, T_gt, CUBE, cube_group),
@@ -70,9 +70,7 @@ def test_cube_quarter_turn_is_zero_with_symmetries_but_not_for_add(cube_group):
     assert len(cube_group) == 24  # 23 listed in the config, plus the identity
     T_gt = random_poses(np.random.default_rng(5), 1)[0]
     T_est = T_gt @ rot("z", 90.0)  # the origin is on the z axis (centre of the bottom face)
-    targets = se3.transform_points(cube_group, CUBE).reshape(-1, 3)
-    assert float(M.add_s(T_est, T_gt, CUBE)) == pytest.approx(0.0, abs=1e-12)
-    assert float(M.add_s(T_est, T_gt, CUBE, targets)) == pytest.approx(0.0, abs=1e-12)
+    assert float(M.adi(T_est, T_gt, CUBE)) == pytest.approx(0.0, abs=1e-12)
     assert float(M.add(T_est, T_gt, CUBE, cube_group)) == pytest.approx(0.0, abs=1e-12)
     assert float(M.mssd(T_est, T_gt, CUBE, cube_group)) == pytest.approx(0.0, abs=1e-12)
     assert float(M.pose_error_bbox(T_est, T_gt, CUBE, cube_group)) == pytest.approx(0.0, abs=1e-12)
@@ -125,7 +123,7 @@ def test_batched_equals_looped(cube_group):
         "tangent": lambda a, b: M.tangent_error(a, b),
         "add": lambda a, b: M.add(a, b, pts),
         "add_sym": lambda a, b: M.add(a, b, pts, cube_group),
-        "add_s": lambda a, b: M.add_s(a, b, pts),
+        "adi": lambda a, b: M.adi(a, b, pts),
         "mssd": lambda a, b: M.mssd(a, b, pts, cube_group),
         "bbox": lambda a, b: M.pose_error_bbox(a, b, CUBE, cube_group),
         "lateral": lambda a, b: M.lateral_displacement(a, b, CUBE, (0, 0, 1), cube_group),
@@ -149,7 +147,7 @@ def test_batched_equals_looped(cube_group):
 
 def test_ground_truth_scores_zero(cube_group):
     T = random_poses(np.random.default_rng(13), 20)
-    for v in (M.translation_error(T, T), M.rotation_error(T, T), M.add(T, T, CUBE), M.add_s(T, T, CUBE),
+    for v in (M.translation_error(T, T), M.rotation_error(T, T), M.add(T, T, CUBE), M.adi(T, T, CUBE),
               M.mssd(T, T, CUBE, cube_group), M.lateral_displacement(T, T, CUBE)):
         np.testing.assert_allclose(v, 0.0, atol=1e-7)
     np.testing.assert_array_equal(M.closest_symmetry(T, T, CUBE, cube_group), 0)
@@ -215,3 +213,69 @@ def test_clipped_bounds_of_a_pyramid():
     lo, hi = M.clipped_bounds(v2, edges, 0.005)
     np.testing.assert_allclose(lo, [-0.005, -0.005, 0.0], atol=1e-15)
     np.testing.assert_allclose(hi, [0.005, 0.005, 0.005], atol=1e-15)
+
+
+# --- BOP's adi and mspd -----------------------------------------------------------------------------
+
+K_TEST = np.array([[600.0, 0.0, 320.0], [0.0, 610.0, 240.0], [0.0, 0.0, 1.0]])
+
+
+def bop_adi(R_est, t_est, R_gt, t_gt, pts):
+    """bop_toolkit's pose_error.adi, transcribed from its definition: for every model point
+    placed by the truth, the distance to the nearest model point placed by the estimate."""
+    from scipy.spatial import cKDTree
+
+    pts_est = pts @ R_est.T + t_est
+    pts_gt = pts @ R_gt.T + t_gt
+    return float(cKDTree(pts_est).query(pts_gt, k=1)[0].mean())
+
+
+def bop_mspd(R_est, t_est, R_gt, t_gt, K, pts, syms):
+    """bop_toolkit's pose_error.mspd, transcribed: symmetries applied to the truth."""
+
+    def project(R, t):
+        x = (pts @ R.T + t) @ K.T
+        return x[:, :2] / x[:, 2:3]
+
+    p_est = project(R_est, t_est)
+    return min(float(np.linalg.norm(p_est - project(R_gt @ S[:3, :3], R_gt @ S[:3, 3] + t_gt), axis=1).max())
+               for S in syms)
+
+
+def test_adi_hand_computed_is_truth_to_nearest_estimate():
+    # Points 0, 1 cm along x and 3 cm along y; the estimate is shifted 2 cm along y.
+    pts = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.03, 0.0]])
+    T_est = se3.make_pose(np.eye(3), (0.0, 0.02, 0.0))
+    # From the truth's points: (0,0) -> (0,2): 2; (1,0) -> (1,2): 2; (0,3) -> (0,2): 1 cm.
+    assert float(M.adi(T_est, np.eye(4), pts)) == pytest.approx(0.05 / 3, abs=1e-12)
+    # The other direction (estimate's points to the truth's) would give (1 + sqrt 2 + 2) / 3 cm.
+    assert float(M.adi(np.eye(4), T_est, pts)) == pytest.approx((0.03 + math.sqrt(2) * 0.01) / 3, abs=1e-12)
+
+
+def test_adi_and_mspd_equal_bop_toolkit_definitions(cube_group):
+    rng = np.random.default_rng(21)
+    pts = rng.normal(0, 0.01, (300, 3)) * [1.0, 0.5, 2.0]
+    T_gt = se3.make_pose(Rotation.random(30, random_state=1).as_matrix(), rng.normal(0, 0.02, (30, 3)) + [0, 0, 0.4])
+    T_est = T_gt @ se3.exp_se3(rng.normal(0, [0.003] * 3 + [0.3] * 3, (30, 6)))
+    ours = M.adi(T_est, T_gt, pts)
+    theirs = [bop_adi(a[:3, :3], a[:3, 3], b[:3, :3], b[:3, 3], pts) for a, b in zip(T_est, T_gt)]
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9)
+    # the symmetric cube: values for the configured group as BOP computes them
+    cube_pts = M.box_corners((-0.0125, -0.0125, 0.0), (0.0125, 0.0125, 0.025))
+    ours = M.mspd(T_est, T_gt, K_TEST, cube_pts, cube_group)
+    theirs = [bop_mspd(a[:3, :3], a[:3, 3], b[:3, :3], b[:3, 3], K_TEST, cube_pts, cube_group)
+              for a, b in zip(T_est, T_gt)]
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(M.adi(T_est @ cube_group[5], T_est, cube_pts), 0.0, atol=1e-12)
+
+
+def test_mspd_hand_computed():
+    T_gt = se3.make_pose(np.eye(3), (0.0, 0.0, 0.5))  # 0.5 m in front of the camera
+    pts = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    # 1 mm along x at 0.5 m: fx * 0.001 / 0.5 = 1.2 px for both points
+    T_est = se3.make_pose(np.eye(3), (0.001, 0.0, 0.5))
+    assert float(M.mspd(T_est, T_gt, K_TEST, pts)) == pytest.approx(1.2, abs=1e-9)
+    # a half turn about z through the object's x midpoint swaps the points: a symmetry of the pair
+    swap = rot("z", 180.0, (0.01, 0.0, 0.0))
+    assert float(M.mspd(T_gt @ swap, T_gt, K_TEST, pts)) == pytest.approx(600 * 0.01 / 0.5, abs=1e-9)
+    assert float(M.mspd(T_gt @ swap, T_gt, K_TEST, pts, swap[None])) == pytest.approx(0.0, abs=1e-9)

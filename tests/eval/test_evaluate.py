@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 import yaml
 from _eval_tracks import GT_TOPIC, REPO, STEP_NS, trajectory, write_gt_log, write_track
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from mvtop_cli.config import load_config
 from mvtop_cli.errors import ConfigError, LogError, MvtopError, TrackError
 from mvtop_cli.eval.report import parse_bop_csv
 from mvtop_cli.geometry import se3
-from mvtop_cli.pipelines.evaluate import aggregate, evaluate, read_gt_file
+from mvtop_cli.pipelines.evaluate import aggregate, evaluate, object_model, read_gt_file
 
 N = 8
 
@@ -48,7 +49,7 @@ def test_truth_as_estimate_scores_zero_and_is_insertable(tmp_path, conn1):
     track = write_track(tmp_path / "track", "conn1", stamps, T_gt, T_ee)
     report = evaluate(track, log, None, tmp_path / "report")
     f = report["final"]
-    for key in ("translation_error_mm", "rotation_error_deg", "pose_error_mm", "add_mm", "add_s_mm", "mssd_mm",
+    for key in ("translation_error_mm", "rotation_error_deg", "pose_error_mm", "add_mm", "adi_mm", "mssd_mm",
                 "insertion_error_mm", "translation_error_nosym_mm", "rotation_error_nosym_deg"):
         assert f[key] == pytest.approx(0.0, abs=1e-6), key
     assert f["insertable"] is True
@@ -74,7 +75,7 @@ def test_known_lateral_offset_gives_that_error_and_nees(tmp_path, conn1):
     for key in ("translation_error_mm", "pose_error_mm", "add_mm", "mssd_mm", "insertion_error_mm"):
         assert f[key] == pytest.approx(0.1, abs=1e-6), key
     # ADD-S matches each point to the nearest sample, sometimes a neighbour of its own.
-    assert 0.095 < f["add_s_mm"] <= f["add_mm"]
+    assert 0.095 < f["adi_mm"] <= f["add_mm"]
     assert f["rotation_error_deg"] == pytest.approx(0.0, abs=1e-6)
     assert f["insertable"] is True  # 0.1 mm <= 0.25 mm clearance (configs/conn1.yaml)
     # NEES by hand: the error in ee axes under the full final covariance.
@@ -206,9 +207,15 @@ def test_cube_quarter_turn_is_no_error_with_its_symmetries(tmp_path):
     report = evaluate(write_track(tmp_path / "track", "cube", stamps, T_gt @ quarter, T_ee), log, None, tmp_path / "r")
     f = report["final"]
     assert report["symmetries"] == 23
-    for key in ("translation_error_mm", "rotation_error_deg", "pose_error_mm", "add_sym_mm", "add_s_mm", "mssd_mm",
-                "insertion_error_mm", "add_or_add_s_mm"):
+    for key in ("translation_error_mm", "rotation_error_deg", "pose_error_mm", "add_sym_mm", "mssd_mm",
+                "insertion_error_mm"):
         assert f[key] == pytest.approx(0.0, abs=1e-6), key
+    # ADI (BOP's ADD-S) matches points to the nearest surface sample of the turned cube: its
+    # samples are not where the truth's are, so it is the sample spacing's error, as in BOP.
+    samples = object_model(load_config(REPO / "configs" / "cube.yaml")).samples
+    expected = cKDTree(samples @ quarter[:3, :3].T).query(samples)[0].mean() * 1e3
+    assert f["adi_mm"] == pytest.approx(expected, abs=1e-9) and 0.1 < f["adi_mm"] < 1.5
+    assert f["add_or_adi_mm"] == f["adi_mm"]
     assert f["insertable"] is True and f["symmetry_index"] != 0
     assert f["rotation_error_nosym_deg"] == pytest.approx(90.0, abs=1e-6)
     assert f["add_mm"] > 10.0  # ADD does not know the cube is symmetric
@@ -350,3 +357,40 @@ def test_bad_ground_truth_file(tmp_path, content, message):
         read_gt_file(gt)
     with pytest.raises(ConfigError, match="ground-truth file not found"):
         read_gt_file(tmp_path / "missing.yaml")
+
+
+def test_without_a_clearance_insertable_is_n_a(tmp_path, conn1):
+    """A config without object.clearance_m: no insertable verdict anywhere, the rest as usual."""
+    stamps, T_gt, T_ee, log = conn1
+    track = write_track(tmp_path / "track", "conn1", stamps, world_offset(T_gt, 1e-4 * lateral_unit(T_gt[-1])), T_ee)
+    cfg_path = track / "config.resolved.yaml"
+    data = yaml.safe_load(cfg_path.read_text())
+    del data["object"]["clearance_m"]
+    cfg_path.write_text(yaml.safe_dump(data))
+    report = evaluate(track, log, None, tmp_path / "r")
+    f = report["final"]
+    assert report["clearance_mm"] is None and f["clearance_mm"] is None and f["insertable"] is None
+    assert report["frames"]["insertable_fraction"] is None
+    assert all(r["insertable"] is None for r in report["per_frame"])
+    assert f["insertion_error_mm"] == pytest.approx(0.1, abs=1e-6)
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "n/a (no clearance configured)" in md and "Insertable: n/a" in md
+    assert "insertable: n/a" in (tmp_path / "r" / "report.html").read_text()
+    agg = aggregate([report])
+    assert agg["success_rate"] is None and agg["successes"] is None
+
+
+def test_bop_csv_named_as_bop_toolkit_expects(tmp_path, conn1):
+    stamps, T_gt, T_ee, log = conn1
+    track = write_track(tmp_path / "track", "conn1", stamps, T_gt, T_ee)
+    report = evaluate(track, log, None, tmp_path / "r", bop_name="mvtop-vt_conn1-test")
+    assert report["files"]["bop_csv"] == "mvtop-vt_conn1-test.csv"
+    name = (tmp_path / "r" / "mvtop-vt_conn1-test.csv")
+    # bop_toolkit's scripts: method = before the first '_', then dataset-split
+    method, info = name.stem.split("_", 1)
+    assert (method, *info.split("-")) == ("mvtop-vt", "conn1", "test")
+    assert len(parse_bop_csv(name.read_text())) == len(stamps)
+    for bad in ("mvtop_conn1_test", "mvtop", "my_method_conn1-test", "mvtop_conn-1-test-x-y"):
+        with pytest.raises(MvtopError, match="METHOD_DATASET-SPLIT"):
+            evaluate(track, log, None, tmp_path / "bad", bop_name=bad)
+    assert not (tmp_path / "bad").exists()

@@ -177,3 +177,35 @@ def test_writer_rejects_misuse(tmp_path):
         with pytest.raises(ValueError, match="2 joint names but 1 positions"):
             w.write_joint_state("/joint_states", ["a", "b"], [0.0], T0)
     assert (tmp_path / "y.mcap").exists()
+
+
+def test_triangle_marker_bytes_equal_mcap_ros2_encoder(tmp_path):
+    """The Marker (Humble definition) against mcap_ros2's generic encoder, and decoded back."""
+    tri = np.arange(2 * 9, dtype=float).reshape(2, 3, 3) * 1e-3
+    path = tmp_path / "marker.mcap"
+    with LogWriter(path, compression="none") as w:
+        w.write_triangle_marker("/model", tri, T0, "object_estimate", rgba=(0.25, 0.5, 0.75, 1.0), ns="object")
+    with open(path, "rb") as fh:
+        ((_s, _c, mine),) = list(make_reader(fh).iter_messages())
+    header = {"stamp": {"sec": T0 // 10**9, "nanosec": T0 % 10**9}, "frame_id": "object_estimate"}
+    msg = {
+        "header": header, "ns": "object", "id": 0, "type": 11, "action": 0,
+        "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+        "scale": {"x": 1.0, "y": 1.0, "z": 1.0}, "color": {"r": 0.25, "g": 0.5, "b": 0.75, "a": 1.0},
+        "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": True,
+        "points": [{"x": float(p[0]), "y": float(p[1]), "z": float(p[2])} for p in tri.reshape(-1, 3)],
+        "colors": [], "texture_resource": "",
+        "texture": {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "format": "", "data": b""},
+        "uv_coordinates": [], "text": "", "mesh_resource": "", "mesh_file": {"filename": "", "data": b""},
+        "mesh_use_embedded_materials": False,
+    }
+    buf = io.BytesIO()
+    ref_writer = Ros2Writer(buf, compression=__import__("mcap.writer").writer.CompressionType.NONE)
+    schema = ref_writer.register_msgdef(rm.MARKER, rm.definition(rm.MARKER))
+    ref_writer.write_message("/model", schema, msg, log_time=T0)
+    ref_writer.finish()
+    ((_s, _c, ref),) = list(make_reader(io.BytesIO(buf.getvalue())).iter_messages())
+    assert mine.data == ref.data
+    with McapLog(path) as log:
+        (m,) = list(log.messages())
+    assert [(p.x, p.y, p.z) for p in m.msg.points] == [tuple(p) for p in tri.reshape(-1, 3)]
