@@ -165,6 +165,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 
 @cli.command("simulate")
 @click.option("--object", "object_name", metavar="NAME", help="Object to simulate (see --list).")
+@click.option("--object-file", "object_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Simulate your own part: an object file (YAML, README \"Your own part\"; mvtop mesh-check writes one).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed: same seed, same bytes.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Output log (.mcap).")
 @click.option("--frames", type=click.IntRange(4, 100000), default=30, show_default=True, help="Frames at 10 Hz.")
@@ -210,7 +212,7 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Also write the YAML config that pairs with the log, the meshes in meshes/ beside it and, with "
                    "--kinematics joint-states, the robot's URDF beside it.")
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
-def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
+def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
                  slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
                  jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
                  list_objects) -> None:
@@ -230,8 +232,10 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         for n in names():
             click.echo(f"{n:<10} {get_object(n).description}")
         return
-    if not object_name or out is None:
-        raise MvtopError("simulate needs --object NAME and --out PATH.mcap (or --list)")
+    if object_name and object_file:
+        raise MvtopError("simulate takes --object NAME or --object-file FILE, not both")
+    if not (object_name or object_file) or out is None:
+        raise MvtopError("simulate needs --object NAME (or --object-file FILE) and --out PATH.mcap (or --list)")
     try:
         width, height = (int(v) for v in resolution.lower().split("x"))
     except ValueError:
@@ -259,7 +263,12 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
     from .sim.episode import EpisodeOptions
     from .sim.timing import SensorTiming
 
-    get_object(object_name)  # unknown names fail before any work
+    if object_file is not None:
+        from .sim.object_file import load_object_file
+
+        object_name = load_object_file(object_file)  # a bad file fails before any work
+    else:
+        get_object(object_name)  # unknown names fail before any work
     options = SimulateOptions(
         episode=EpisodeOptions(
             frames=frames, grasp_translation_m=grasp_translation_mm / 1000.0, grasp_rotation_deg=grasp_rotation_deg,
@@ -270,7 +279,7 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         compression=compression, kinematics=kinematics,
         timing=SensorTiming(camera_every=camera_every, drop_fraction=drop_fraction, jitter_s=stamp_jitter_ms / 1000.0),
     )
-    with _progress(f"simulate {object_name}") as update:
+    with _progress(f"simulate {getattr(object_name, 'name', object_name)}") as update:
         summary = simulate(object_name, seed, out, options, progress=update)
     click.echo(f"wrote {summary.path}: {summary.frames} frames ({summary.contact_frames} in contact), "
                f"{summary.bytes / 1e6:.1f} MB")

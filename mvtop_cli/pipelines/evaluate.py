@@ -20,7 +20,9 @@ import yaml
 from ..config import Config, load_config
 from ..errors import ConfigError, LogError, MvtopError, TrackError
 from ..eval import metrics as M
+from ..eval import continuous as C
 from ..eval import report as R
+from ..eval.clearance import continuous_scores, insertable
 from ..geometry import se3
 from ..io.atomic import atomic_output
 
@@ -271,6 +273,8 @@ class ObjectModel:
     group: np.ndarray
     clearance_m: float
     insertion_depth_m: float
+    continuous_symmetry: tuple[np.ndarray, np.ndarray] | None = None  # (axis (3,), point (3,) [m])
+    directional_clearance: tuple[tuple[float, float], tuple[float, float]] | None = None  # [m], see config
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -303,6 +307,10 @@ def object_model(cfg: Config) -> ObjectModel:
         raise ConfigError(f"{cfg.source}: object.symmetries: {err}") from None
     samples = sample_surface(V, mesh.faces, SURFACE_SAMPLES, np.random.default_rng(SAMPLE_SEED))
     targets = se3.transform_points(group, samples).reshape(-1, 3)
+    if obj.continuous_symmetry is not None:  # ADD-S targets every 10 degrees about the axis
+        turns = C.rotation_about(obj.continuous_symmetry.unit_axis(), obj.continuous_symmetry.point_m,
+                                 np.radians(np.arange(0.0, 360.0, 10.0)))
+        targets = se3.transform_points(turns, targets).reshape(-1, 3)
     lo, hi = V.min(axis=0), V.max(axis=0)
     # The leading face is the object's lowest z (frames.md: +z points away from the
     # receptacle); a zero depth still checks that face.
@@ -311,8 +319,24 @@ def object_model(cfg: Config) -> ObjectModel:
     return ObjectModel(
         name=obj.name, vertices=hull, samples=samples, sample_targets=targets, corners=M.box_corners(lo, hi),
         insertion_corners=M.box_corners(ilo, ihi), group=group, clearance_m=obj.clearance_m,
-        insertion_depth_m=obj.insertion_depth_m,
+        insertion_depth_m=obj.insertion_depth_m, **_symmetry_and_clearance(obj),
     )
+
+
+def _continuous_text(model: ObjectModel) -> str | None:
+    """The continuous symmetry as the report states it, e.g. "about (0, 0, 1) through (0, 0, 0) mm"."""
+    if model.continuous_symmetry is None:
+        return None
+    axis, point = model.continuous_symmetry
+    return (f"every rotation about ({', '.join(f'{v:.6g}' for v in axis)}) through "
+            f"({', '.join(f'{1e3 * v:.6g}' for v in point)}) mm")
+
+
+def _symmetry_and_clearance(obj) -> dict:
+    """ObjectModel's continuous symmetry and directional clearance from the config's object."""
+    c, d = obj.continuous_symmetry, obj.directional_clearance
+    return {"continuous_symmetry": None if c is None else (c.unit_axis(), np.asarray(c.point_m, dtype=np.float64)),
+            "directional_clearance": None if d is None else (d.x_m, d.y_m)}
 
 
 # --- scoring ----------------------------------------------------------------------------------------
@@ -350,12 +374,16 @@ def score_poses(
         "insertion_error_m": M.lateral_displacement(T_est, T_gt, model.insertion_corners, (0, 0, 1), G),
         "symmetry_index": k,
     }
+    S = G[k]
+    if model.continuous_symmetry is not None:  # exact minima over the angle (eval/continuous.py)
+        S = continuous_scores(model, T_est, T_gt, out)
+        sym = True
     out["add_or_add_s_m"] = out["add_s_m"] if sym else out["add_m"]
-    out["insertable"] = out["insertion_error_m"] <= model.clearance_m
+    out["insertable"] = insertable(model, T_est, T_gt, out["insertion_error_m"])
     if covariance_ee is not None:
         T_ee_gt = se3.invert(T_world_ee) @ T_gt
-        e = M.tangent_error(T_ee_est @ G[k], T_ee_gt)
-        P = M.shift_covariance(covariance_ee, T_ee_est, G[k]) + np.diag(COVARIANCE_FLOOR)
+        e = M.tangent_error(T_ee_est @ S, T_ee_gt)
+        P = M.shift_covariance(covariance_ee, T_ee_est, S) + np.diag(COVARIANCE_FLOOR)
         out["nees"] = M.nees(e, P)
     return out
 
@@ -462,6 +490,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "track_dir": str(track_dir),
         "object": model.name,
         "symmetries": int(len(model.group) - 1),
+        "continuous_symmetry": _continuous_text(model),
         "clearance_mm": model.clearance_m * 1e3,
         "insertion_depth_mm": model.insertion_depth_m * 1e3,
         "ground_truth": gt_info,
