@@ -531,7 +531,10 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
 @benchmark_group.command("accuracy")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Benchmark folder (runs are kept there; running again resumes).")
-@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five).")
+@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
+              "with --object-file unless given).")
+@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Also benchmark your own part, described by this object file (repeat for several).")
 @click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
@@ -544,7 +547,7 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
-def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, methods: str, frames: int,
+def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int, methods: str, frames: int,
                            particles: int | None, workers: int, import_results: Path | None, summary_only: bool) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
@@ -554,15 +557,22 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     from .pipelines.benchmark_accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
     from .sim.objects import get_object, list_objects
 
-    objs = tuple(o.strip() for o in objects.split(",")) if objects else tuple(list_objects())
+    objs = tuple(o.strip() for o in objects.split(",")) if objects else () if object_files else tuple(list_objects())
     for o in objs:
         get_object(o)
+    from .sim.object_file import load_object_file
+
+    files = tuple((load_object_file(f).name, str(f.resolve())) for f in object_files)
+    clash = sorted({n for n, _ in files if n in objs or [m for m, _ in files].count(n) > 1})
+    if clash:
+        raise MvtopError(f"--object-file: object name {clash[0]!r} is used twice (object names name the runs)")
+    objs += tuple(n for n, _ in files)
     meths = tuple(m.strip() for m in methods.split(","))
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
-                              import_results=import_results, summary_only=summary_only)
+                              import_results=import_results, summary_only=summary_only, object_files=files)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
