@@ -288,6 +288,49 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
         click.echo(f"wrote {write_config}")
 
 
+@cli.command("mesh-check")
+@click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--receptacle", type=click.Path(dir_okay=False, path_type=Path),
+              help="The receptacle's mesh: also measure the insertion depth and the clearance per direction.")
+@click.option("--units", type=click.Choice(["auto", "m", "mm"]), default="auto", show_default=True,
+              help="Units of the mesh files (auto: from the size).")
+@click.option("--leading-face", type=click.Choice(["-z", "+z", "-x", "+x", "-y", "+y", "cad"]), default="-z",
+              show_default=True, help="The face of the part's bounding box that enters the receptacle first "
+                                      "(cad: the file is in mvtop's object frame already).")
+@click.option("--mouth", type=click.Choice(["+z", "-z", "-x", "+x", "-y", "+y", "cad"]), default="+z",
+              show_default=True, help="The face of the receptacle's bounding box that holds the mouth.")
+@click.option("--max-faces", type=click.IntRange(100, 10_000_000), default=5000, show_default=True,
+              help="Finer meshes get a simplified copy for the renderer.")
+@click.option("--symmetry-tolerance-mm", type=click.FloatRange(0, 10, min_open=True), default=0.02, show_default=True,
+              help="A transform is a symmetry when it moves every test point at most this far off the surface.")
+@click.option("--name", help="Object name (default: the mesh file's stem).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the object file here (and the renderer's copy beside it); default: print it.")
+def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face: str, mouth: str, max_faces: int,
+                   symmetry_tolerance_mm: float, name: str | None, out: Path | None) -> None:
+    """Check a part's CAD file (and its receptacle's) and describe it as an object file.
+
+    One line per finding: units from the size, watertightness and repairs, face count (with a
+    simplified copy for the renderer), the symmetries found numerically, and with --receptacle
+    the insertion depth and the clearance per direction at the inserted pose. The output is an
+    object file for mvtop simulate --object-file and mvtop benchmark accuracy --object-file.
+    """
+    from .sim.mesh_check import CheckOptions, check, write_result
+
+    if out is not None:
+        _check_output_path(out, ".yaml")
+    options = CheckOptions(units=units, leading_face=leading_face, mouth=mouth, max_faces=max_faces,
+                           symmetry_tolerance_m=symmetry_tolerance_mm / 1000.0, name=name)
+    result = check(mesh, receptacle, options)
+    text = write_result(result, out)
+    if out is None:
+        click.echo(text, nl=False)
+    else:
+        for line in result.findings:
+            click.echo(line)
+        click.echo(f"wrote {out}")
+
+
 @cli.command("estimate")
 @click.argument("log", type=LOG_PATH)
 @CONFIG_OPTION

@@ -98,6 +98,9 @@ class ObjectConfig:
     directional_clearance: DirectionalClearance | None = field(
         default=None, metadata={"doc": "clearance per direction; clearance_m is then its smallest value"}
     )
+    render_mesh: Path | None = field(
+        default=None, metadata={"doc": "a simplified copy of mesh (same frame and units) for the mask renderer"}
+    )
 
 
 @dataclass(frozen=True)
@@ -454,7 +457,8 @@ def _check_semantics(cfg: Config) -> None:
         raise _Invalid("modalities", "a modality is listed twice")
     if not cfg.modalities:
         raise _Invalid("modalities", f"expected at least one of {', '.join(MODALITIES)}")
-    meshes = [("object.mesh", cfg.object.mesh)] + [
+    meshes = [("object.mesh", cfg.object.mesh)] + [("object.render_mesh", cfg.object.render_mesh)] * bool(
+        cfg.object.render_mesh) + [
         (f"environment[{i}].mesh", e.mesh) for i, e in enumerate(cfg.environment)
     ]
     for key, path in meshes:

@@ -52,7 +52,9 @@ class SceneModel:
         _check_size(self.object_mesh, cfg.object.mesh, "object.units", cfg.object.units,
                     _MIN_OBJECT_EXTENT_M, _MAX_OBJECT_EXTENT_M, "a part held in a gripper")
         self.renderer = NumbaMaskRenderer()
-        self.renderer.add_mesh(OBJECT_ID, self.object_mesh.vertices, self.object_mesh.faces)
+        shown = self.object_mesh if cfg.object.render_mesh is None else load_mesh(
+            cfg.object.render_mesh, cfg.object.units, "object render mesh")  # a simplified copy (mesh-check)
+        self.renderer.add_mesh(OBJECT_ID, shown.vertices, shown.faces)
         self.parts: list[EnvPart] = []
         for i, e in enumerate(cfg.environment):
             closed = build_contact and e.collide and e.frame == cfg.frames.world

@@ -330,7 +330,7 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
             "clearance_m": float(spec.clearance_m),
             "insertion_depth_m": float(spec.insertion_depth_m),
             "symmetries": sym,
-            **_extra_object_keys(spec),
+            **_extra_object_keys(spec, mesh_dir),
         },
         "environment": [
             {"name": "receptacle", "mesh": f"{mesh_dir}/{object_name}_receptacle.obj", "frame": "world",
@@ -360,17 +360,21 @@ def export_scene_meshes(out_dir: Path, objects: list[str] | None = None) -> list
         spec = resolve_object(ref)
         meshes[spec.name] = spec.mesh
         meshes[f"{spec.name}_receptacle"] = spec.receptacle_mesh
+        if spec.render_mesh is not None:
+            meshes[f"{spec.name}_render"] = spec.render_mesh
     meshes["finger"] = grip.gripper_meshes()["left"]
     meshes["board"] = board_mesh()
     return [write_obj(mesh, out_dir / f"{name}.obj", name) for name, mesh in meshes.items()]
 
 
-def _extra_object_keys(spec) -> dict:
+def _extra_object_keys(spec, mesh_dir: str) -> dict:
     """The config's object keys beyond the built-in objects' (written only when the part has them)."""
     out = {}
     if spec.continuous_symmetry is not None:
         c = spec.continuous_symmetry
         out["continuous_symmetry"] = {"axis": [float(v) for v in c.axis], "point_m": [float(v) for v in c.point_m]}
+    if spec.render_mesh is not None:
+        out["render_mesh"] = f"{mesh_dir}/{spec.name}_render.obj"
     if spec.directional_clearance is not None:
         d = spec.directional_clearance
         out["directional_clearance"] = {"x_m": [float(v) for v in d.x_m], "y_m": [float(v) for v in d.y_m]}

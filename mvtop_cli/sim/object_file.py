@@ -50,6 +50,8 @@ class PartMesh:
     units: Literal["m", "mm"] = "m"
     frame: Literal["cad", "-x", "+x", "-y", "+y", "-z", "+z"] = "cad"
     pose: PoseSpec = PoseSpec()
+    render_mesh: Path | None = field(default=None, metadata={"doc": "a simplified copy of mesh (same coordinates "
+                                                                     "and units) for the estimator's renderer"})
 
 
 @dataclass(frozen=True)
@@ -184,17 +186,24 @@ def load_object_file(path: Path | str):
     desc = read_object_file(path)
     mesh = load_mesh(desc.object.mesh, desc.object.units, "object mesh", closed=True)
     receptacle = load_mesh(desc.receptacle.mesh, desc.receptacle.units, "receptacle mesh", closed=True)
-    return object_spec(desc, mesh, receptacle, path)
+    render = None
+    if desc.object.render_mesh is not None:
+        render = load_mesh(desc.object.render_mesh, desc.object.units, "object render mesh")
+    return object_spec(desc, mesh, receptacle, path, render)
 
 
-def object_spec(desc: ObjectFile, mesh: trimesh.Trimesh, receptacle_mesh: trimesh.Trimesh, source: Path | str):
+def object_spec(desc: ObjectFile, mesh: trimesh.Trimesh, receptacle_mesh: trimesh.Trimesh, source: Path | str,
+                render_mesh: trimesh.Trimesh | None = None):
     """Build the ``ObjectSpec`` of ``desc`` from its meshes (metres, mesh coordinates): frames
     applied, grasp resolved, symmetries as matrices. The one constructor of object specs (the
     built-in objects come through here too)."""
     from ..sim.gripper import FINGERTIP_OFFSET_M
     from ..sim.objects import ObjectSpec
 
-    mesh = _moved(mesh, frame_transform(mesh, desc.object, "-z"))
+    T_object_mesh = frame_transform(mesh, desc.object, "-z")
+    if render_mesh is not None:
+        render_mesh = _moved(render_mesh, T_object_mesh)
+    mesh = _moved(mesh, T_object_mesh)
     receptacle_mesh = _moved(receptacle_mesh, frame_transform(receptacle_mesh, desc.receptacle, "+z"))
     g = desc.grasp
     if g.pose is not None and g.height_m is not None:
@@ -229,7 +238,7 @@ def object_spec(desc: ObjectFile, mesh: trimesh.Trimesh, receptacle_mesh: trimes
         insertion_depth_m=desc.insertion_depth_m, clearance_m=desc.clearance_m, grasp=grasp, grasp_width_m=width,
         symmetry=symmetry, color_rgba=a.color_rgba, receptacle_color_rgba=a.receptacle_color_rgba,
         material=a.material, metallic=a.metallic, roughness=a.roughness, continuous_symmetry=cont,
-        directional_clearance=dc,
+        directional_clearance=dc, render_mesh=render_mesh,
     )
 
 
@@ -315,7 +324,7 @@ def object_file_dict(desc: ObjectFile, relative_to: Path | None = None) -> dict:
         if isinstance(v, Path):
             return os.path.relpath(v, relative_to) if relative_to is not None and v.is_absolute() else v.as_posix()
         if isinstance(v, float):
-            return round(v, 12)
+            return round(v, 12) + 0.0  # no -0.0 in the file
         return v
 
     return conv(desc)

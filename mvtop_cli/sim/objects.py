@@ -80,6 +80,8 @@ class ObjectSpec:
         An axis (object frame) about which every rotation maps the mesh onto itself.
     directional_clearance : DirectionalClearance or None
         Clearance per lateral direction [m]; ``clearance_m`` is then its smallest value.
+    render_mesh : trimesh.Trimesh or None
+        A simplified copy of ``mesh`` (object frame [m]) for the estimator's mask renderer.
     """
 
     name: str
@@ -98,6 +100,7 @@ class ObjectSpec:
     roughness: float
     continuous_symmetry: ContinuousSymmetry | None = None
     directional_clearance: DirectionalClearance | None = None
+    render_mesh: trimesh.Trimesh | None = None
 
     @property
     def T_receptacle_object_inserted(self) -> np.ndarray:
