@@ -44,6 +44,7 @@ KINEMATICS = {
     "joint-states": "no robot TF: /joint_states of the gantry and its fingers, with the robot's URDF (robot.urdf)",
 }
 URDF_FILE = f"{robot.ROBOT_NAME}.urdf"  # written beside the scene config
+SDF_RESOLUTION_M = 0.00025  # the config's default contact.sdf_resolution_m
 
 
 @dataclass(frozen=True)
@@ -344,6 +345,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     }
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}
+    if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance
+        cfg["contact"] = {"sdf_resolution_m": round(spec.clearance_m / 2.0, 9)}
     return cfg
 
 

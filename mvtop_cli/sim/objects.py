@@ -453,6 +453,16 @@ def get_object(name: str) -> ObjectSpec:
     return object_spec(desc, mesh, receptacle, f"built-in object {name!r}")
 
 
+def builtin_object_file(name: str, mesh_dir: str = "../meshes"):
+    """The object file (``ObjectFile``) of the built-in object ``name`` with its meshes named
+    ``{mesh_dir}/{name}.obj`` and ``{mesh_dir}/{name}_receptacle.obj`` (``configs/objects/``)."""
+    from dataclasses import replace
+
+    desc = builtin_description(name)[0]
+    return replace(desc, object=replace(desc.object, mesh=Path(f"{mesh_dir}/{name}.obj")),
+                   receptacle=replace(desc.receptacle, mesh=Path(f"{mesh_dir}/{name}_receptacle.obj")))
+
+
 def builtin_description(name: str):
     """``(ObjectFile, mesh, receptacle_mesh)`` of the built-in object ``name``: the description
     ``configs/objects/<name>.yaml`` holds, with the meshes (already in mvtop's frames) it names."""
