@@ -278,7 +278,7 @@ def check(mesh_path: Path, receptacle_path: Path | None, options: CheckOptions =
         err = simplification_error(raw, render)
         findings.append(f"faces: {len(obj.faces)}, more than the renderer needs ({options.max_faces}): a copy with "
                         f"{len(render.faces)} faces is at most {1e3 * err:.3f} mm from the original surface "
-                        "(use it as the config's object.render_mesh)")
+                        "(object.render_mesh)")
     else:
         findings.append(f"faces: {len(obj.faces)} (<= {options.max_faces}: fine for the renderer)")
     discrete, continuous = find_symmetries(obj, options.symmetry_tolerance_m)
