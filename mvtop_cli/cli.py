@@ -166,7 +166,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 @cli.command("simulate")
 @click.option("--object", "object_name", metavar="NAME", help="Object to simulate (see --list).")
 @click.option("--object-file", "object_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="Simulate your own part: an object file (YAML, README \"Your own part\"; mvtop mesh-check writes one).")
+              help="Simulate your own part: an object file (YAML, README \"Your own part\"; mvtop mesh-check "
+                   "writes one).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed: same seed, same bytes.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Output log (.mcap).")
 @click.option("--frames", type=click.IntRange(4, 100000), default=30, show_default=True, help="Frames at 10 Hz.")
@@ -212,7 +213,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Also write the YAML config that pairs with the log, the meshes in meshes/ beside it and, with "
                    "--kinematics joint-states, the robot's URDF beside it.")
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
-def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
+def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg,
+                 slip_mm,
                  slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
                  jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
                  list_objects) -> None:
@@ -590,7 +592,8 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
-def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int, methods: str, frames: int,
+def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
+                           methods: str, frames: int,
                            particles: int | None, workers: int, import_results: Path | None, summary_only: bool) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success

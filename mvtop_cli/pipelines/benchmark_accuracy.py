@@ -174,8 +174,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     t0 = time.perf_counter()
     if options.workers <= 1:
         for obj, seed, method, run_dir in todo:
-            reports[(obj, seed, method)] = _run_one(obj, seed, method, str(run_dir), options.frames, options.particles, threads,
-                                                    dict(options.object_files).get(obj))
+            reports[(obj, seed, method)] = _run_one(obj, seed, method, str(run_dir), options.frames, options.particles,
+                                                    threads, dict(options.object_files).get(obj))
             done += 1
             if progress is not None:
                 progress(done, len(jobs))

@@ -102,7 +102,8 @@ class SceneModel:
         meshes = [p.mesh for p in fixed]
         poses = np.stack([p.T_frame_mesh for p in fixed])
         # Where the grid lies and how fine: contact/grid.py (a warning when coarser than the clearance)
-        boxes = [trimesh.transformations.transform_points(trimesh.bounds.corners(m.bounds), T) for m, T in zip(meshes, poses)]
+        boxes = [trimesh.transformations.transform_points(trimesh.bounds.corners(m.bounds), T)
+                 for m, T in zip(meshes, poses)]
         bounds, res, coarse = contact_grid(boxes, float(np.max(self.object_mesh.extents)),
                                            self.cfg.contact.sdf_resolution_m, self.cfg.object.clearance_m)
         if coarse is not None:

@@ -73,7 +73,8 @@ def _load(path: Path, units: str, what: str, findings: list[str]) -> tuple[trime
         findings.append(f"{what}: NOT USABLE: {err}")
         raise
     if notes:
-        findings.append(f"{what}: " + "; ".join(n.split(": ", 1)[1] for n in notes) + " (mvtop repairs it when loading)")
+        repaired = "; ".join(n.split(": ", 1)[1] for n in notes)
+        findings.append(f"{what}: {repaired} (mvtop repairs it when loading)")
     else:
         findings.append(f"{what}: watertight, {len(mesh.faces)} faces")
     return mesh, units
@@ -229,9 +230,9 @@ def measure_fit(obj: trimesh.Trimesh, rec: trimesh.Trimesh, findings: list[str])
     down = free_travel(obj, rec, T, [0.0, 0.0, -1.0])
     depth_contact = down - start
     if not np.isfinite(down) or depth_contact < 2 * FLOOR_GAP_M:
-        findings.append(f"insertion: the part lowered onto the centre of the receptacle's mouth touches {1e3 * -depth_contact:.3g} "
-                        "mm above it: it does not go in there; move the receptacle mesh (receptacle.pose) so the "
-                        "bore is at the origin, then run mesh-check again")
+        findings.append(f"insertion: the part lowered onto the centre of the receptacle's mouth touches "
+                        f"{1e3 * -depth_contact:.3g} mm above it: it does not go in there; move the receptacle mesh "
+                        "(receptacle.pose) so the bore is at the origin, then run mesh-check again")
         return None
     depth = depth_contact - FLOOR_GAP_M
     T[2, 3] = -depth
@@ -253,7 +254,7 @@ def measure_fit(obj: trimesh.Trimesh, rec: trimesh.Trimesh, findings: list[str])
         findings.append(f"insertion: the bore's centre is at ({1e3 * offset[0]:.4g}, {1e3 * offset[1]:.4g}) mm from "
                         "the mouth face's centre; receptacle.pose moves it to the origin")
     findings.append("clearance (free travel at the inserted pose) [mm]: "
-                    + ", ".join(f"{n} {1e3 * t:.3f}" for n, t in zip(("-x", "+x", "-y", "+y"), travel)))
+                    + ", ".join(f"{n} {1e3 * t:.3f}" for n, t in zip(("-x", "+x", "-y", "+y"), travel, strict=True)))
     return {"depth": depth, "offset": offset, "travel": travel}
 
 

@@ -27,7 +27,8 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_industreal_peg_from_raw_cad_to_an_evaluated_estimate(tmp_path):
-    peg, tray = MESHES / "industreal_rectangular_peg_12mm.obj", MESHES / "industreal_tray_insert_rectangular_peg_12mm.obj"
+    peg = MESHES / "industreal_rectangular_peg_12mm.obj"
+    tray = MESHES / "industreal_tray_insert_rectangular_peg_12mm.obj"
     out = run("mesh-check", str(peg), "--receptacle", str(tray), "--name", "peg12", "--out", "peg12.yaml",
               cwd=tmp_path).stdout
     assert "object mesh: units: m: the part is 0.05 file units across" in out
