@@ -182,6 +182,9 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 
 @cli.command("simulate")
 @click.option("--object", "object_name", metavar="NAME", help="Object to simulate (see --list).")
+@click.option("--object-file", "object_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Simulate your own part: an object file (YAML, README \"Your own part\"; mvtop mesh-check "
+                   "writes one).")
 @seed_option(0)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Output log (.mcap).")
 @click.option("--frames", type=click.IntRange(4, 100000), default=30, show_default=True, help="Frames at 10 Hz.")
@@ -227,7 +230,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Also write the YAML config that pairs with the log, the meshes in meshes/ beside it and, with "
                    "--kinematics joint-states, the robot's URDF beside it.")
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
-def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg, slip_mm,
+def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg,
+                 slip_mm,
                  slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
                  jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
                  list_objects) -> None:
@@ -248,8 +252,10 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         for n in names():
             click.echo(f"{n:<10} {get_object(n).description}")
         return
-    if not object_name or out is None:
-        raise MvtopError("simulate needs --object NAME and --out PATH.mcap (or --list)")
+    if object_name and object_file:
+        raise MvtopError("simulate takes --object NAME or --object-file FILE, not both")
+    if not (object_name or object_file) or out is None:
+        raise MvtopError("simulate needs --object NAME (or --object-file FILE) and --out PATH.mcap (or --list)")
     try:
         width, height = (int(v) for v in resolution.lower().split("x"))
     except ValueError:
@@ -277,7 +283,12 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
     from .sim.episode import EpisodeOptions
     from .sim.timing import SensorTiming
 
-    get_object(object_name)  # unknown names fail before any work
+    if object_file is not None:
+        from .sim.object_file import load_object_file
+
+        object_name = load_object_file(object_file)  # a bad file fails before any work
+    else:
+        get_object(object_name)  # unknown names fail before any work
     options = SimulateOptions(
         episode=EpisodeOptions(
             frames=frames, grasp_translation_m=grasp_translation_mm / 1000.0, grasp_rotation_deg=grasp_rotation_deg,
@@ -288,13 +299,56 @@ def simulate_cmd(object_name, seed, out, frames, grasp_translation_mm, grasp_rot
         compression=compression, kinematics=kinematics,
         timing=SensorTiming(camera_every=camera_every, drop_fraction=drop_fraction, jitter_s=stamp_jitter_ms / 1000.0),
     )
-    with _progress(f"simulate {object_name}") as update:
+    with _progress(f"simulate {getattr(object_name, 'name', object_name)}") as update:
         summary = simulate(object_name, seed, out, options, progress=update)
     click.echo(f"wrote {summary.path}: {summary.frames} frames ({summary.contact_frames} in contact), "
                f"{summary.bytes / 1e6:.1f} MB")
     if write_config is not None:
         write_scene_config(object_name, write_config, options)
         click.echo(f"wrote {write_config}")
+
+
+@cli.command("mesh-check")
+@click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--receptacle", type=click.Path(dir_okay=False, path_type=Path),
+              help="The receptacle's mesh: also measure the insertion depth and the clearance per direction.")
+@click.option("--units", type=click.Choice(["auto", "m", "mm"]), default="auto", show_default=True,
+              help="Units of the mesh files (auto: from the size).")
+@click.option("--leading-face", type=click.Choice(["-z", "+z", "-x", "+x", "-y", "+y", "cad"]), default="-z",
+              show_default=True, help="The face of the part's bounding box that enters the receptacle first "
+                                      "(cad: the file is in mvtop's object frame already).")
+@click.option("--mouth", type=click.Choice(["+z", "-z", "-x", "+x", "-y", "+y", "cad"]), default="+z",
+              show_default=True, help="The face of the receptacle's bounding box that holds the mouth.")
+@click.option("--max-faces", type=click.IntRange(100, 10_000_000), default=5000, show_default=True,
+              help="Finer meshes get a simplified copy for the renderer.")
+@click.option("--symmetry-tolerance-mm", type=click.FloatRange(0, 10, min_open=True), default=0.02, show_default=True,
+              help="A transform is a symmetry when it moves every test point at most this far off the surface.")
+@click.option("--name", help="Object name (default: the mesh file's stem).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the object file here (and the renderer's copy beside it); default: print it.")
+def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face: str, mouth: str, max_faces: int,
+                   symmetry_tolerance_mm: float, name: str | None, out: Path | None) -> None:
+    """Check a part's CAD file (and its receptacle's) and describe it as an object file.
+
+    One line per finding: units from the size, watertightness and repairs, face count (with a
+    simplified copy for the renderer), the symmetries found numerically, and with --receptacle
+    the insertion depth and the clearance per direction at the inserted pose. The output is an
+    object file for mvtop simulate --object-file and mvtop benchmark accuracy --object-file.
+    """
+    from .sim.mesh_check import CheckOptions, check, write_result
+
+    if out is not None:
+        _check_output_path(out, ".yaml")
+    options = CheckOptions(units=units, leading_face=leading_face, mouth=mouth, max_faces=max_faces,
+                           symmetry_tolerance_m=symmetry_tolerance_mm / 1000.0, name=name)
+    result = check(mesh, receptacle, options)
+    text = write_result(result, out)
+    if out is None:
+        click.echo(text, nl=False)
+    else:
+        for line in result.findings:
+            click.echo(line)
+        click.echo(f"wrote {out}")
 
 
 @cli.command("estimate")
@@ -548,7 +602,10 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
 @benchmark_group.command("accuracy")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Benchmark folder (runs are kept there; running again resumes).")
-@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five).")
+@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
+              "with --object-file unless given).")
+@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Also benchmark your own part, described by this object file (repeat for several).")
 @click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
@@ -561,7 +618,8 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
-def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, methods: str, frames: int,
+def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
+                           methods: str, frames: int,
                            particles: int | None, workers: int, import_results: Path | None, summary_only: bool) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
@@ -571,15 +629,22 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     from .benchmarks.accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
     from .sim.objects import get_object, list_objects
 
-    objs = tuple(o.strip() for o in objects.split(",")) if objects else tuple(list_objects())
+    objs = tuple(o.strip() for o in objects.split(",")) if objects else () if object_files else tuple(list_objects())
     for o in objs:
         get_object(o)
+    from .sim.object_file import load_object_file
+
+    files = tuple((load_object_file(f).name, str(f.resolve())) for f in object_files)
+    clash = sorted({n for n, _ in files if n in objs or [m for m, _ in files].count(n) > 1})
+    if clash:
+        raise MvtopError(f"--object-file: object name {clash[0]!r} is used twice (object names name the runs)")
+    objs += tuple(n for n, _ in files)
     meths = tuple(m.strip() for m in methods.split(","))
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
-                              import_results=import_results, summary_only=summary_only)
+                              import_results=import_results, summary_only=summary_only, object_files=files)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))

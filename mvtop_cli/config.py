@@ -80,6 +80,29 @@ class PoseSpec:
 
 
 @dataclass(frozen=True)
+class ContinuousSymmetry:
+    """Rotation by any angle about ``axis`` through ``point_m`` (object frame) maps the mesh
+    onto itself (a round peg, a cylinder): the symmetry group is these rotations composed
+    with ``object.symmetries``."""
+
+    axis: tuple[float, float, float] = field(default=(0.0, 0.0, 1.0), metadata=_rng(-1.0, 1.0))
+    point_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_rng(-10.0, 10.0))
+
+    def unit_axis(self) -> np.ndarray:
+        a = np.asarray(self.axis, dtype=np.float64)
+        return a / np.linalg.norm(a)
+
+
+@dataclass(frozen=True)
+class DirectionalClearance:
+    """Clearance that differs by direction: the free travel [m] of the inserted object along
+    the object frame's lateral axes, ``(towards -x, towards +x)`` and ``(towards -y, towards +y)``."""
+
+    x_m: tuple[float, float] = field(metadata=_rng(0.0, 0.01, lo_open=True))
+    y_m: tuple[float, float] = field(metadata=_rng(0.0, 0.01, lo_open=True))
+
+
+@dataclass(frozen=True)
 class ObjectConfig:
     """The grasped object: its CAD model and insertion tolerance."""
 
@@ -91,6 +114,15 @@ class ObjectConfig:
     insertion_depth_m: float = field(default=0.0, metadata=_rng(0.0, 0.2))
     symmetries: tuple[PoseSpec, ...] = field(
         default=(), metadata={"doc": "transforms S (besides the identity) with mesh == S applied to mesh"}
+    )
+    continuous_symmetry: ContinuousSymmetry | None = field(
+        default=None, metadata={"doc": "an axis about which every rotation maps the mesh onto itself"}
+    )
+    directional_clearance: DirectionalClearance | None = field(
+        default=None, metadata={"doc": "clearance per direction; clearance_m is then its smallest value"}
+    )
+    render_mesh: Path | None = field(
+        default=None, metadata={"doc": "a simplified copy of mesh (same frame and units) for the mask renderer"}
     )
 
 
@@ -528,7 +560,8 @@ def _check_semantics(cfg: Config) -> None:
         raise _Invalid("modalities", "a modality is listed twice")
     if not cfg.modalities:
         raise _Invalid("modalities", f"expected at least one of {', '.join(MODALITIES)}")
-    meshes = [("object.mesh", cfg.object.mesh)] + [
+    meshes = [("object.mesh", cfg.object.mesh)] + [("object.render_mesh", cfg.object.render_mesh)] * bool(
+        cfg.object.render_mesh) + [
         (f"environment[{i}].mesh", e.mesh) for i, e in enumerate(cfg.environment)
     ]
     for key, path in meshes:
@@ -538,9 +571,36 @@ def _check_semantics(cfg: Config) -> None:
         raise _Invalid("robot.urdf", f"URDF file not found: {cfg.robot.urdf}")
     if cfg.contact.force_off_n >= cfg.contact.force_on_n:
         raise _Invalid("contact.force_off_n", "expected a value below contact.force_on_n (hysteresis)")
+    _check_object(cfg.object)
     f = cfg.filter
     if f.sigma_high_translation_m < f.sigma_low_translation_m:
         raise _Invalid("filter.sigma_high_translation_m", "expected a value >= filter.sigma_low_translation_m")
+
+
+def _check_object(obj: ObjectConfig) -> None:
+    """The continuous symmetry's axis is a direction; a directional clearance's smallest value
+    is the per-side ``clearance_m`` the reports quote."""
+    if obj.continuous_symmetry is not None and np.linalg.norm(obj.continuous_symmetry.axis) < 1e-6:
+        raise _Invalid("object.continuous_symmetry.axis", "expected a non-zero direction")
+    d = obj.directional_clearance
+    if d is not None and abs(min(*d.x_m, *d.y_m) - obj.clearance_m) > 1e-9:
+        raise _Invalid("object.clearance_m", f"expected the smallest value of object.directional_clearance, "
+                                             f"{min(*d.x_m, *d.y_m)!r}, got {obj.clearance_m!r}")
+
+
+def parse_section(cls: type, data: Any, source: Path | str, base_dir: Path) -> Any:
+    """Validate ``data`` as the dataclass ``cls`` with the config's rules (unknown keys with a
+    suggestion, types, ranges; relative paths against ``base_dir``): for other YAML files
+    (object files) that follow them. ``ConfigError`` names ``source`` and the dotted key."""
+    try:
+        return _build(cls, data, "", Path(base_dir))
+    except _Invalid as err:
+        raise ConfigError(f"{source}: {err.key}: {err.message}") from None
+
+
+def invalid(source: Path | str, key: str, message: str) -> ConfigError:
+    """The one-line ``ConfigError`` of a cross-field check: ``"{source}: {key}: {message}"``."""
+    return ConfigError(f"{source}: {key}: {message}")
 
 
 def parse_config(data: Any, source: Path | str = "<config>", base_dir: Path | None = None) -> Config:

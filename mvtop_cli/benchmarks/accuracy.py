@@ -65,6 +65,7 @@ class AccuracyOptions:
     particles: int | None = None
     workers: int = 1
     first_seed: int = 1000
+    object_files: tuple[tuple[str, str], ...] = ()  # (name, object file path) of objects in ``objects``
     import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
     summary_only: bool = False  # tables over the finished runs; no run is made
 
@@ -86,8 +87,10 @@ def code_fingerprint(package: Path | None = None) -> str:
     return h.hexdigest()[:12]
 
 
-def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int) -> dict:
-    """Simulate (once per object and seed, shared by the methods), estimate, evaluate."""
+def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
+             source: str | None = None) -> dict:
+    """Simulate (once per object and seed, shared by the methods), estimate, evaluate. ``source``:
+    the object file of ``obj`` (default: the built-in object of that name)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.estimate import EstimateOptions, estimate
@@ -103,10 +106,10 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     simulate_seconds = 0.0
     if not log.exists():
         ts = time.perf_counter()
-        simulate(obj, seed, log, SimulateOptions(episode=EpisodeOptions(frames=frames)))
+        simulate(source or obj, seed, log, SimulateOptions(episode=EpisodeOptions(frames=frames)))
         simulate_seconds = time.perf_counter() - ts
     if not cfg_path.exists():
-        write_scene_config(obj, cfg_path)
+        write_scene_config(source or obj, cfg_path)
     cfg = load_config(cfg_path)
     t0, c0 = time.perf_counter(), time.process_time()
     extra = {}
@@ -171,7 +174,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     t0 = time.perf_counter()
     if options.workers <= 1:
         for obj, seed, method, run_dir in todo:
-            reports[(obj, seed, method)] = _run_one(obj, seed, method, str(run_dir), options.frames, options.particles, threads)
+            reports[(obj, seed, method)] = _run_one(obj, seed, method, str(run_dir), options.frames, options.particles,
+                                                    threads, dict(options.object_files).get(obj))
             done += 1
             if progress is not None:
                 progress(done, len(jobs))
@@ -179,7 +183,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         # methods of one scene share its simulated log; two workers may both simulate it, which
         # is harmless: simulation is deterministic and the log is written atomically
         with ProcessPoolExecutor(max_workers=options.workers) as pool:
-            futures = {pool.submit(_run_one, o, s, m, str(d), options.frames, options.particles, threads): (o, s, m)
+            futures = {pool.submit(_run_one, o, s, m, str(d), options.frames, options.particles, threads,
+                                   dict(options.object_files).get(o)): (o, s, m)
                        for o, s, m, d in todo}
             for fut in as_completed(futures):
                 reports[futures[fut]] = fut.result()

@@ -13,6 +13,7 @@ import numpy as np
 import trimesh
 
 from ..config import Config, EnvironmentMesh
+from ..contact.grid import contact_grid
 from ..contact.sdf import ObjectSignedDistance
 from ..errors import MeshError
 from ..filter.health import warning
@@ -52,7 +53,9 @@ class SceneModel:
         _check_size(self.object_mesh, cfg.object.mesh, "object.units", cfg.object.units,
                     _MIN_OBJECT_EXTENT_M, _MAX_OBJECT_EXTENT_M, "a part held in a gripper")
         self.renderer = NumbaMaskRenderer()
-        self.renderer.add_mesh(OBJECT_ID, self.object_mesh.vertices, self.object_mesh.faces)
+        shown = self.object_mesh if cfg.object.render_mesh is None else load_mesh(
+            cfg.object.render_mesh, cfg.object.units, "object render mesh")  # a simplified copy (mesh-check)
+        self.renderer.add_mesh(OBJECT_ID, shown.vertices, shown.faces)
         self.parts: list[EnvPart] = []
         for i, e in enumerate(cfg.environment):
             closed = build_contact and e.collide and e.frame == cfg.frames.world
@@ -98,20 +101,14 @@ class SceneModel:
             return
         meshes = [p.mesh for p in fixed]
         poses = np.stack([p.T_frame_mesh for p in fixed])
-        # The grid covers the receptacle-sized fixed parts (under 10 cm: receptacles, fixtures,
-        # not the board or table they stand on, whose top face inside the box is still in the
-        # grid) with a 5 mm margin: contact happens there; farther out phi is only needed to be
-        # large, and the grid's continuation beyond its box (value + distance) gives that.
-        boxes = [trimesh.transformations.transform_points(m.bounds, T) for m, T in zip(meshes, poses)]
-        small = [b for b in boxes if np.max(b.max(axis=0) - b.min(axis=0)) < 0.1] or boxes
-        lo = np.min([b.min(axis=0) for b in small], axis=0)
-        hi = np.max([b.max(axis=0) for b in small], axis=0)
-        margin = 0.005
-        bounds = np.stack([lo - margin, hi + margin])
-        res = self.cfg.contact.sdf_resolution_m
-        cells = np.prod((bounds[1] - bounds[0]) / res)
-        if cells > 2e7:  # keep the grid under ~80 MB of float32 and a few seconds to build
-            res = float(((bounds[1] - bounds[0]).prod() / 2e7) ** (1 / 3))
+        # Where the grid lies and how fine: contact/grid.py (a warning when coarser than the clearance)
+        boxes = [trimesh.transformations.transform_points(trimesh.bounds.corners(m.bounds), T)
+                 for m, T in zip(meshes, poses)]
+        bounds, res, coarse = contact_grid(boxes, float(np.max(self.object_mesh.extents)),
+                                           self.cfg.contact.sdf_resolution_m, self.cfg.object.clearance_m)
+        if coarse is not None:
+            self.warnings.append(warning(None, "contact_grid_coarse", coarse, resolution_m=res,
+                                         clearance_m=self.cfg.object.clearance_m))
         self.sdf = ObjectSignedDistance.from_meshes(
             self.object_mesh, meshes, poses, bounds, rng=np.random.default_rng(0), resolution_m=res,
             n_points=1000, use_fcl=False,

@@ -208,7 +208,7 @@ def _point_displacements(D: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ np.swapaxes(D[..., :3, :3], -1, -2) + (D[..., None, :3, 3] - points)
 
 
-def _reduce_points(T_est, T_gt, points, symmetries, per_pose) -> np.ndarray:
+def reduce_points(T_est, T_gt, points, symmetries, per_pose) -> np.ndarray:
     """Apply ``per_pose(D (c, m, 4, 4), points) -> (c, m)`` in chunks of poses; min over m."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     group = _group(symmetries)
@@ -232,7 +232,7 @@ def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, symmetries: np.
     With ``symmetries`` (k, 4, 4): the minimum over the symmetric equivalents of the
     estimate, ``min_S mean_p ||T_est S p - T_gt p||``.
     """
-    return _reduce_points(T_est, T_gt, points, symmetries,
+    return reduce_points(T_est, T_gt, points, symmetries,
                           lambda D, p: np.linalg.norm(_point_displacements(D, p), axis=-1).mean(axis=-1))
 
 
@@ -259,7 +259,7 @@ def mssd(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray, symmetries: np
     of a distance that is affine in ``p`` is reached at a vertex of the convex hull, so
     passing only the hull vertices gives the same value faster.
     """
-    return _reduce_points(T_est, T_gt, points, symmetries,
+    return reduce_points(T_est, T_gt, points, symmetries,
                           lambda D, p: np.linalg.norm(_point_displacements(D, p), axis=-1).max(axis=-1))
 
 
@@ -284,7 +284,7 @@ def lateral_displacement(
         d = d - (d @ a)[..., None] * a
         return np.linalg.norm(d, axis=-1).max(axis=-1)
 
-    return _reduce_points(T_est, T_gt, points, symmetries, per_pose)
+    return reduce_points(T_est, T_gt, points, symmetries, per_pose)
 
 
 def adi(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -94,7 +94,7 @@ _SYMMETRY_ONLY = ("add_sym_mm", "translation_error_nosym_mm", "rotation_error_no
 
 def _table_rows(report: dict) -> tuple[tuple[str, str, str], ...]:
     """TABLE_ROWS without the rows that repeat others when the object has no symmetries."""
-    if report.get("symmetries"):
+    if report.get("symmetries") or report.get("continuous_symmetry"):
         return TABLE_ROWS
     return tuple(r for r in TABLE_ROWS if r[0] not in _SYMMETRY_ONLY)
 
@@ -153,7 +153,9 @@ def render_markdown(report: dict) -> str:
         f"- track: `{report['track_dir']}`",
         f"- ground truth: {src}",
         f"- frames: {fr['count']} estimated, {fr['with_truth']} with ground truth",
-        f"- symmetries: {report['symmetries']} besides the identity; clearance {_fmt(report['clearance_mm'])} mm per side, "
+        f"- symmetries: {report['symmetries']} besides the identity"
+        + (f", and {report['continuous_symmetry']}" if report.get("continuous_symmetry") else "")
+        + f"; clearance {_fmt(report['clearance_mm'])} mm per side, "
         f"insertion depth {_fmt(report['insertion_depth_mm'])} mm",
         "",
         f"## Final frame (frame {report['final']['frame']})",

@@ -22,6 +22,7 @@ from ..config import Config, load_config
 from ..errors import ConfigError, LogError, MvtopError, TrackError
 from ..eval import metrics as M
 from ..eval import report as R
+from ..eval.clearance import continuous_scores, insertable
 from ..geometry import se3
 from ..io.atomic import atomic_output
 
@@ -338,6 +339,8 @@ class ObjectModel:
     group: np.ndarray
     clearance_m: float | None  # None: not configured, "insertable" is n/a
     insertion_depth_m: float
+    continuous_symmetry: tuple[np.ndarray, np.ndarray] | None = None  # (axis (3,), point (3,) [m])
+    directional_clearance: tuple[tuple[float, float], tuple[float, float]] | None = None  # [m], see config
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -377,8 +380,24 @@ def object_model(cfg: Config) -> ObjectModel:
     return ObjectModel(
         name=obj.name, vertices=hull, mesh_vertices=V, samples=samples, corners=M.box_corners(lo, hi),
         insertion_corners=M.box_corners(ilo, ihi), group=group, clearance_m=obj.clearance_m,
-        insertion_depth_m=obj.insertion_depth_m,
+        insertion_depth_m=obj.insertion_depth_m, **_symmetry_and_clearance(obj),
     )
+
+
+def _continuous_text(model: ObjectModel) -> str | None:
+    """The continuous symmetry as the report states it, e.g. "about (0, 0, 1) through (0, 0, 0) mm"."""
+    if model.continuous_symmetry is None:
+        return None
+    axis, point = model.continuous_symmetry
+    return (f"every rotation about ({', '.join(f'{v:.6g}' for v in axis)}) through "
+            f"({', '.join(f'{1e3 * v:.6g}' for v in point)}) mm")
+
+
+def _symmetry_and_clearance(obj) -> dict:
+    """ObjectModel's continuous symmetry and directional clearance from the config's object."""
+    c, d = obj.continuous_symmetry, obj.directional_clearance
+    return {"continuous_symmetry": None if c is None else (c.unit_axis(), np.asarray(c.point_m, dtype=np.float64)),
+            "directional_clearance": None if d is None else (d.x_m, d.y_m)}
 
 
 # --- scoring ----------------------------------------------------------------------------------------
@@ -416,15 +435,19 @@ def score_poses(
         "insertion_error_m": M.lateral_displacement(T_est, T_gt, model.insertion_corners, (0, 0, 1), G),
         "symmetry_index": k,
     }
+    S = G[k]
+    if model.continuous_symmetry is not None:  # exact minima over the angle (eval/continuous.py)
+        S = continuous_scores(model, T_est, T_gt, out)
+        sym = True
     out["add_or_adi_m"] = out["adi_m"] if sym else out["add_m"]
     if model.clearance_m is None:  # no clearance configured: not decidable
         out["insertable"] = np.full(len(out["insertion_error_m"]), None, dtype=object)
     else:
-        out["insertable"] = out["insertion_error_m"] <= model.clearance_m
+        out["insertable"] = insertable(model, T_est, T_gt, out["insertion_error_m"])
     if covariance_ee is not None:
         T_ee_gt = se3.invert(T_world_ee) @ T_gt
-        e = M.tangent_error(T_ee_est @ G[k], T_ee_gt)
-        P = M.shift_covariance(covariance_ee, T_ee_est, G[k]) + np.diag(COVARIANCE_FLOOR)
+        e = M.tangent_error(T_ee_est @ S, T_ee_gt)
+        P = M.shift_covariance(covariance_ee, T_ee_est, S) + np.diag(COVARIANCE_FLOOR)
         out["nees"] = M.nees(e, P)
     return out
 
@@ -580,6 +603,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "track_dir": str(track_dir),
         "object": model.name,
         "symmetries": int(len(model.group) - 1),
+        "continuous_symmetry": _continuous_text(model),
         "clearance_mm": _mm(model.clearance_m),
         "insertion_depth_mm": model.insertion_depth_m * 1e3,
         "ground_truth": gt_info,

@@ -28,7 +28,7 @@ from ..sim import gripper as grip
 from ..sim import robot
 from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects
 from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode, state_at
-from ..sim.objects import get_object
+from ..sim.object_file import resolve_object
 from ..sim.scene import board_mesh, camera_placements, receptacle_pose, table_mesh
 from ..sim.tactile import make_background, render_tactile_image
 from ..sim.timing import SensorTiming, capture_schedule
@@ -44,6 +44,7 @@ KINEMATICS = {
     "joint-states": "no robot TF: /joint_states of the gantry and its fingers, with the robot's URDF (robot.urdf)",
 }
 URDF_FILE = f"{robot.ROBOT_NAME}.urdf"  # written beside the scene config
+SDF_RESOLUTION_M = 0.00025  # the config's default contact.sdf_resolution_m
 
 
 @dataclass(frozen=True)
@@ -97,12 +98,13 @@ def simulate(
     options: SimulateOptions = SimulateOptions(),
     progress: Callable[[int, int], None] | None = None,
 ) -> SimulationSummary:
-    """Simulate one episode of ``object_name`` with ``seed`` and write the log to ``out``."""
+    """Simulate one episode of ``object_name`` (a built-in object's name, an object file's path
+    or an ObjectSpec) with ``seed`` and write the log to ``out``."""
     if options.image_format not in ("jpeg", "png", "raw") or options.tactile_format not in ("jpeg", "png", "raw"):
         raise MvtopError(f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}")
     if options.kinematics not in KINEMATICS:
         raise MvtopError(f"kinematics must be one of {', '.join(KINEMATICS)}, got {options.kinematics!r}")
-    spec = get_object(object_name)
+    spec = resolve_object(object_name)
     rng = np.random.default_rng(seed)
     ep_rng, cam_rng, tac_rng, scene_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=4))
     timing_rng = np.random.default_rng(rng.integers(0, 2**63))  # drawn after the others: they stay as they were
@@ -299,7 +301,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     if gel_distance_m is None:
         gel_distance_m = options.gel_distance_m
     suffix = {fmt: "" if fmt == "raw" else "/compressed" for fmt in ("jpeg", "png", "raw")}
-    spec = get_object(object_name)
+    spec = resolve_object(object_name)
+    object_name = spec.name
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     from ..config import PoseSpec
 
@@ -328,6 +331,7 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
             "clearance_m": float(spec.clearance_m),
             "insertion_depth_m": float(spec.insertion_depth_m),
             "symmetries": sym,
+            **_extra_object_keys(spec, mesh_dir),
         },
         "environment": [
             {"name": "receptacle", "mesh": f"{mesh_dir}/{object_name}_receptacle.obj", "frame": "world",
@@ -341,6 +345,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     }
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}
+    if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance
+        cfg["contact"] = {"sdf_resolution_m": round(spec.clearance_m / 2.0, 9)}
     return cfg
 
 
@@ -353,13 +359,29 @@ def export_scene_meshes(out_dir: Path, objects: list[str] | None = None) -> list
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     meshes = {}
-    for name in objects or list_objects():
-        spec = get_object(name)
-        meshes[name] = spec.mesh
-        meshes[f"{name}_receptacle"] = spec.receptacle_mesh
+    for ref in objects or list_objects():
+        spec = resolve_object(ref)
+        meshes[spec.name] = spec.mesh
+        meshes[f"{spec.name}_receptacle"] = spec.receptacle_mesh
+        if spec.render_mesh is not None:
+            meshes[f"{spec.name}_render"] = spec.render_mesh
     meshes["finger"] = grip.gripper_meshes()["left"]
     meshes["board"] = board_mesh()
     return [write_obj(mesh, out_dir / f"{name}.obj", name) for name, mesh in meshes.items()]
+
+
+def _extra_object_keys(spec, mesh_dir: str) -> dict:
+    """The config's object keys beyond the built-in objects' (written only when the part has them)."""
+    out = {}
+    if spec.continuous_symmetry is not None:
+        c = spec.continuous_symmetry
+        out["continuous_symmetry"] = {"axis": [float(v) for v in c.axis], "point_m": [float(v) for v in c.point_m]}
+    if spec.render_mesh is not None:
+        out["render_mesh"] = f"{mesh_dir}/{spec.name}_render.obj"
+    if spec.directional_clearance is not None:
+        d = spec.directional_clearance
+        out["directional_clearance"] = {"x_m": [float(v) for v in d.x_m], "y_m": [float(v) for v in d.y_m]}
+    return out
 
 
 def write_scene_config(object_name: str, path: Path, options: SimulateOptions | None = None) -> Path:
@@ -376,8 +398,10 @@ def write_scene_config(object_name: str, path: Path, options: SimulateOptions | 
     if options.kinematics == "joint-states":
         with atomic_output(path.parent / URDF_FILE) as fh:
             fh.write(robot.urdf_text(options.gel_distance_m).encode())
+    how = f"--object {object_name}" if isinstance(object_name, str) and not object_name.endswith((".yaml", ".yml")) \
+        else f"--object-file, object {resolve_object(object_name).name!r}"
     text = (
-        f"# mvtop config for the simulated {object_name} scene (mvtop simulate --object {object_name}).\n"
+        f"# mvtop config for the simulated {resolve_object(object_name).name} scene (mvtop simulate {how}).\n"
         "# Units: metres and degrees as the key names say; mesh paths are relative to this file.\n"
         + yaml.safe_dump(scene_config(object_name, options=options), sort_keys=False, default_flow_style=None)
     )

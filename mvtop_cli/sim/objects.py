@@ -17,11 +17,13 @@ import difflib
 import functools
 import itertools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 import trimesh
 
+from mvtop_cli.config import ContinuousSymmetry, DirectionalClearance, PoseSpec
 from mvtop_cli.errors import ConfigError
 
 # One axis-aligned box: ((x0, x1), (y0, y1), (z0, z1)) [mm].
@@ -74,6 +76,12 @@ class ObjectSpec:
         ``wood``, ``metal`` or ``plastic``: a hint for renderers.
     metallic, roughness : float
         PBR hints in [0, 1] for the object's material.
+    continuous_symmetry : ContinuousSymmetry or None
+        An axis (object frame) about which every rotation maps the mesh onto itself.
+    directional_clearance : DirectionalClearance or None
+        Clearance per lateral direction [m]; ``clearance_m`` is then its smallest value.
+    render_mesh : trimesh.Trimesh or None
+        A simplified copy of ``mesh`` (object frame [m]) for the estimator's mask renderer.
     """
 
     name: str
@@ -90,6 +98,9 @@ class ObjectSpec:
     material: str
     metallic: float
     roughness: float
+    continuous_symmetry: ContinuousSymmetry | None = None
+    directional_clearance: DirectionalClearance | None = None
+    render_mesh: trimesh.Trimesh | None = None
 
     @property
     def T_receptacle_object_inserted(self) -> np.ndarray:
@@ -432,15 +443,49 @@ def list_objects() -> list[str]:
 def get_object(name: str) -> ObjectSpec:
     """The object ``name`` with its receptacle; built once, then cached and shared.
 
-    Raises ConfigError naming the valid objects (with a suggestion) for an unknown name.
+    Built as any object file is (``object_file.object_spec``), from its description
+    (:func:`builtin_description`). Raises ConfigError naming the valid objects (with a
+    suggestion) for an unknown name.
     """
+    from .object_file import object_spec
+
+    desc, mesh, receptacle = builtin_description(name)
+    return object_spec(desc, mesh, receptacle, f"built-in object {name!r}")
+
+
+def builtin_object_file(name: str, mesh_dir: str = "../meshes"):
+    """The object file (``ObjectFile``) of the built-in object ``name`` with its meshes named
+    ``{mesh_dir}/{name}.obj`` and ``{mesh_dir}/{name}_receptacle.obj`` (``configs/objects/``)."""
+    from dataclasses import replace
+
+    desc = builtin_description(name)[0]
+    return replace(desc, object=replace(desc.object, mesh=Path(f"{mesh_dir}/{name}.obj")),
+                   receptacle=replace(desc.receptacle, mesh=Path(f"{mesh_dir}/{name}_receptacle.obj")))
+
+
+def builtin_description(name: str):
+    """``(ObjectFile, mesh, receptacle_mesh)`` of the built-in object ``name``: the description
+    ``configs/objects/<name>.yaml`` holds, with the meshes (already in mvtop's frames) it names."""
+    from .object_file import Appearance, GraspSpec, ObjectFile, PartMesh, SymmetrySpec
+
     if name not in _BUILDERS:
         close = difflib.get_close_matches(str(name), list(_BUILDERS), n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         valid = ", ".join(_BUILDERS)
         raise ConfigError(f"unknown object {name!r}{hint}; valid objects: {valid}")
-    fields = _BUILDERS[name]()
-    for key in ("grasp", "symmetry"):
-        fields[key] = np.asarray(fields[key], dtype=np.float64)
-        fields[key].setflags(write=False)
-    return ObjectSpec(name=name, **fields)
+    f = _BUILDERS[name]()
+    grasp = np.asarray(f["grasp"], dtype=np.float64)
+    assert np.array_equal(grasp[:3, :3], _RX180) and not grasp[:2, 3].any(), "built-in grasps are on the axis"
+    desc = ObjectFile(
+        name=name,
+        description=f["description"],
+        object=PartMesh(mesh=Path(f"{name}.obj")),
+        receptacle=PartMesh(mesh=Path(f"{name}_receptacle.obj")),
+        insertion_depth_m=f["insertion_depth_m"],
+        clearance_m=f["clearance_m"],
+        grasp=GraspSpec(height_m=float(grasp[2, 3]), width_m=f["grasp_width_m"]),
+        symmetries=SymmetrySpec(discrete=tuple(PoseSpec.from_matrix(S) for S in f["symmetry"][1:])),
+        appearance=Appearance(color_rgba=f["color_rgba"], receptacle_color_rgba=f["receptacle_color_rgba"],
+                              material=f["material"], metallic=f["metallic"], roughness=f["roughness"]),
+    )
+    return desc, f["mesh"], f["receptacle_mesh"]
