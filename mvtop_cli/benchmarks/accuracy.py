@@ -370,18 +370,18 @@ def render_html(summary: dict) -> str:
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         "<title>mvtop benchmark accuracy</title>",
-        f"<style>{R._CSS}</style></head><body>",
+        f"<style>{R.REPORT_CSS}</style></head><body>",
         "<h1>mvtop benchmark accuracy</h1>",
         f"<p>{runs} runs: objects {html.escape(', '.join(objs))}; methods {html.escape(', '.join(summary['methods']))}; "
         f"{summary['poses']} grasps per object requested. Final-frame errors against ground truth (mvtop eval, "
         "symmetry-aware). Boxes: quartiles and median; whiskers: 1.5 interquartile ranges; dots: beyond.</p>",
         *figure_svgs(summary),
         "<h2>Final pose error, median / p95 (bounding-box error; rotation)</h2>",
-        R._html_table(head, err_rows),
+        R.html_table(head, err_rows),
         "<h2>Insertion success rate (final error within the clearance)</h2>",
-        R._html_table(head, rate_rows),
+        R.html_table(head, rate_rows),
         "<h2>Time per run, median (simulation excluded)</h2>",
-        R._html_table(head, time_rows),
+        R.html_table(head, time_rows),
         "</body></html>",
         "",
     ])

@@ -57,7 +57,7 @@ def _dist2_point_segment(px, py, pz, ax, ay, az, bx, by, bz):
 
 
 @numba.njit(cache=True)
-def _dist2_point_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+def dist2_point_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Squared distance from point p to triangle abc.
 
     Classifies p against the Voronoi regions of the triangle's vertices, edges and face
@@ -106,7 +106,7 @@ def _dist2_point_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
 @numba.njit(cache=True, inline="always")
 def _node_dist2(V, F, t, x, y, z):
     a, b, c = F[t, 0], F[t, 1], F[t, 2]
-    return _dist2_point_triangle(
+    return dist2_point_triangle(
         x, y, z,
         V[a, 0], V[a, 1], V[a, 2],
         V[b, 0], V[b, 1], V[b, 2],

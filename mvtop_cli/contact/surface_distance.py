@@ -6,7 +6,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .sdf import _dist2_point_triangle
+from .sdf import dist2_point_triangle
 
 
 @numba.njit(cache=True)
@@ -17,7 +17,7 @@ def _first_outside(V, F, P, tol2):
         inside = False
         for t in range(F.shape[0]):
             a, b, c = F[t, 0], F[t, 1], F[t, 2]
-            d2 = _dist2_point_triangle(px, py, pz, V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
+            d2 = dist2_point_triangle(px, py, pz, V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
                                        V[c, 0], V[c, 1], V[c, 2])
             if d2 <= tol2:
                 inside = True
@@ -34,7 +34,7 @@ def _distances(V, F, P):
         best = np.inf
         for t in range(F.shape[0]):
             a, b, c = F[t, 0], F[t, 1], F[t, 2]
-            d2 = _dist2_point_triangle(P[i, 0], P[i, 1], P[i, 2], V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1],
+            d2 = dist2_point_triangle(P[i, 0], P[i, 1], P[i, 2], V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1],
                                        V[b, 2], V[c, 0], V[c, 1], V[c, 2])
             if d2 < best:
                 best = d2

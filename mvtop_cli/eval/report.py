@@ -288,12 +288,12 @@ def svg_log_plot(
     return "\n".join(out)
 
 
-_CSS = """body{font-family:sans-serif;margin:2em;max-width:60em;color:#222}
+REPORT_CSS = """body{font-family:sans-serif;margin:2em;max-width:60em;color:#222}
 table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}.ok{color:#186a18}.bad{color:#a11}"""
 
 
-def _html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     h = "".join(f"<th>{html.escape(c)}</th>" for c in header)
     b = "".join("<tr>" + "".join(f"<td>{html.escape(c.replace('**', ''))}</td>" for c in r) + "</tr>" for r in rows)
     return f"<table><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>"
@@ -333,21 +333,21 @@ def render_html(report: dict) -> str:
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>mvtop evaluation: {html.escape(report['object'])}</title>",
-        f"<style>{_CSS}</style></head><body>",
+        f"<style>{REPORT_CSS}</style></head><body>",
         f"<h1>mvtop evaluation: {html.escape(report['object'])}</h1>",
         f"<p>Track <code>{html.escape(report['track_dir'])}</code>; ground truth from the "
         f"{html.escape(report['ground_truth']['source'])}; {fr['count']} frames, {fr['with_truth']} with ground truth. "
         f"Final frame: {verdict} (insertion error {_fmt(f['insertion_error_mm'])} mm, clearance "
         f"{_fmt(report['clearance_mm'])} mm).</p>",
         f"<h2>Final frame (frame {f['frame']})</h2>",
-        _html_table(["metric", "value", "unit"], _final_rows(report)),
+        html_table(["metric", "value", "unit"], _final_rows(report)),
         "<h2>Error over time</h2>",
         dist, rot, nees,
         "<h2>Over frames</h2>",
-        _html_table(["metric", "unit", "median", "p95", "max"], _frame_rows(report)),
+        html_table(["metric", "unit", "median", "p95", "max"], _frame_rows(report)),
         f"<p>Per-frame NEES uses a {html.escape(fr['nees_covariance'])}.</p>",
         "<h2>Per frame</h2>",
-        _html_table(header, body),
+        html_table(header, body),
         f"<p>{html.escape(note)}</p>" if note else "",
         "<p>Definitions: docs/metrics.md in the mvtop repository.</p>",
         "</body></html>",

@@ -13,7 +13,7 @@ from mvtop_cli.contact.fcl_distance import FclDistance
 from mvtop_cli.contact.sdf import (
     EnvironmentSDF,
     ObjectSignedDistance,
-    _dist2_point_triangle,
+    dist2_point_triangle,
     sample_surface_points,
 )
 from mvtop_cli.errors import ConfigError, MeshError
@@ -30,7 +30,7 @@ def _brute_distance(points, V, F):
         best = np.inf
         for t in range(len(F)):
             a, b, c = F[t, 0], F[t, 1], F[t, 2]
-            d = _dist2_point_triangle(
+            d = dist2_point_triangle(
                 points[m, 0], points[m, 1], points[m, 2],
                 V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2],
             )  # fmt: skip
@@ -71,12 +71,12 @@ def osd(pocket_sdf, cube_points, cube_fcl):
 )
 def test_point_triangle_distance(p, expected):
     a, b, c = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
-    assert np.sqrt(_dist2_point_triangle(*p, *a, *b, *c)) == pytest.approx(expected, rel=1e-12)
+    assert np.sqrt(dist2_point_triangle(*p, *a, *b, *c)) == pytest.approx(expected, rel=1e-12)
 
 
 def test_point_degenerate_triangle_distance():
     # collinear vertices: distance to the segment from (0,0,0) to (2,0,0)
-    d2 = _dist2_point_triangle(1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0)
+    d2 = dist2_point_triangle(1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0)
     assert d2 == pytest.approx(1.0)
 
 
