@@ -147,7 +147,8 @@ class CameraSensor:
     image_topic: str
     info_topic: str
     frame: str | None = None
-    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
+    weight: float | None = field(default=None, metadata=_rng(
+        0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,8 @@ class TactileSensor:
     depth_topic: str | None = None
     frame: str | None = None
     gel_distance_m: float = field(default=0.025, metadata=_rng(0.0, 0.2, lo_open=True))
-    weight: float | None = field(default=None, metadata=_rng(0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
+    weight: float | None = field(default=None, metadata=_rng(
+        0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
 
 
 @dataclass(frozen=True)
@@ -171,7 +173,8 @@ class SensorsConfig:
     tactile: tuple[TactileSensor, ...] = ()
     tactile_share: float = field(default=0.5, metadata=_rng(
         0.0, 1.0, doc="eq. 2: the tactile sensors' share of the score when cameras and touch are both enabled "
-                      "(the cameras hold the rest); each modality keeps its share on frames where the other has no image"))
+                      "(the cameras hold the rest); each modality keeps its share on frames where the other "
+                      "has no image"))
 
 
 @dataclass(frozen=True)
@@ -228,7 +231,8 @@ class MaskingConfig:
     candidates: int = field(default=96, metadata=_rng(
         1, 100_000, doc="Algorithm 1: the best-weighted particles whose renders choose among the camera proposals"))
     converged_translation_m: float = field(default=0.0005, metadata=_rng(
-        0.0, 0.1, doc="with prompt_when_converged: the belief's RMS translation spread below which it counts as converged"))
+        0.0, 0.1, doc="with prompt_when_converged: the belief's RMS translation spread below which it counts "
+                      "as converged"))
     converged_rotation_deg: float = field(default=1.5, metadata=_rng(
         0.0, 180.0, doc="with prompt_when_converged: the same for the RMS rotation spread"))
     tactile_depth_threshold_m: float = field(default=2e-5, metadata=_rng(
@@ -241,7 +245,8 @@ class FilterConfig:
     """Particle filter parameters (Algorithms 3-4, eq. 1)."""
 
     num_particles: int = field(default=500, metadata=_rng(1, 1_000_000))
-    temperature: float = field(default=0.003, metadata=_rng(0.0, 10.0, lo_open=True, doc="softmax temperature tau of eq. 1"))
+    temperature: float = field(default=0.003, metadata=_rng(
+        0.0, 10.0, lo_open=True, doc="softmax temperature tau of eq. 1"))
     sigma_low_translation_m: float = field(default=0.0001, metadata=_rng(0.0, 0.1))
     sigma_low_rotation_deg: float = field(default=0.1, metadata=_rng(0.0, 180.0))
     sigma_high_translation_m: float = field(default=0.0001, metadata=_rng(0.0, 0.1))
@@ -255,12 +260,14 @@ class FilterConfig:
     refine_target_ess_fraction: float = field(default=0.5, metadata=_rng(
         0.0, 1.0, lo_open=True, doc="fraction of the ESS each adaptive tempering stage keeps"))
     floor_translation_m: float = field(default=5e-5, metadata=_rng(
-        0.0, 0.01, lo_open=True, doc="smallest kernel / proposal sigma per axis of the refinement, and of the jump check"))
+        0.0, 0.01, lo_open=True,
+        doc="smallest kernel / proposal sigma per axis of the refinement, and of the jump check"))
     floor_rotation_deg: float = field(default=0.05, metadata=_rng(0.0, 10.0, lo_open=True))
     ess_collapse_fraction: float = field(default=0.01, metadata=_rng(
         0.0, 1.0, doc="an ESS below this fraction of the particles (at least 2) counts as collapsed"))
     collapse_retry_iterations: int = field(default=24, metadata=_rng(
-        0, 1000, doc="a frame whose ESS collapsed is redone with max(this, 3 x refine_iterations) stages; 0: only flag it"))
+        0, 1000,
+        doc="a frame whose ESS collapsed is redone with max(this, 3 x refine_iterations) stages; 0: only flag it"))
     jump_sigmas: float = field(default=5.0, metadata=_rng(
         0.0, 1000.0, lo_open=True, doc="estimate_jump: a move beyond this many RMS spreads of the predicted belief"))
     roi_size_px: int = field(default=128, metadata=_rng(16, 1024))
@@ -273,12 +280,15 @@ class SearchConfig:
     searches of the grasp prior (multi-start), and every later frame's local re-search check
     (a frame is redone from the searched poses when they beat the belief by ``recheck_margin``)."""
 
-    init_factor: int = field(default=6, metadata=_rng(1, 1000, doc="prior samples per particle in each first-frame search"))
+    init_factor: int = field(default=6, metadata=_rng(
+        1, 1000, doc="prior samples per particle in each first-frame search"))
     first_frame_iteration_factor: int = field(default=3, metadata=_rng(
-        1, 100, doc="refinement iterations on the first frame (and after a re-search), in units of filter.refine_iterations"))
+        1, 100,
+        doc="refinement iterations on the first frame (and after a re-search), in units of filter.refine_iterations"))
     rounds: int = field(default=12, metadata=_rng(0, 1000, doc="rounds of a first-frame search"))
     elite_fraction: float = field(default=0.1, metadata=_rng(0.0, 1.0, lo_open=True))
-    widen: float = field(default=1.5, metadata=_rng(0.0, 100.0, lo_open=True, doc="sigma factor of the elite's Gaussian"))
+    widen: float = field(default=1.5, metadata=_rng(
+        0.0, 100.0, lo_open=True, doc="sigma factor of the elite's Gaussian"))
     floor_translation_m: float = field(default=5e-5, metadata=_rng(0.0, 0.01, lo_open=True))
     floor_rotation_deg: float = field(default=0.05, metadata=_rng(0.0, 10.0, lo_open=True))
     bound: float = field(default=2.0, metadata=_rng(
@@ -298,12 +308,16 @@ class ConsistencyConfig:
     mask disagrees with the estimate the others agree on for ``frames`` frames in a row has
     its eq. 2 weight scaled by ``factor`` for the rest of the run."""
 
-    low_iou: float = field(default=0.5, metadata=_rng(0.0, 1.0, doc="a sensor disagrees below this IoU at the estimate"))
-    consensus_iou: float = field(default=0.7, metadata=_rng(0.0, 1.0, doc="... while the others' median IoU is at least this"))
+    low_iou: float = field(default=0.5, metadata=_rng(
+        0.0, 1.0, doc="a sensor disagrees below this IoU at the estimate"))
+    consensus_iou: float = field(default=0.7, metadata=_rng(
+        0.0, 1.0, doc="... while the others' median IoU is at least this"))
     frames: int = field(default=5, metadata=_rng(1, 100_000))
     factor: float = field(default=0.01, metadata=_rng(0.0, 1.0))
-    min_others: int = field(default=2, metadata=_rng(1, 1000, doc="informative full-weight sensors needed to judge one"))
-    max_fraction: float = field(default=0.5, metadata=_rng(0.0, 1.0, doc="at most this fraction of the sensors is scaled down"))
+    min_others: int = field(default=2, metadata=_rng(
+        1, 1000, doc="informative full-weight sensors needed to judge one"))
+    max_fraction: float = field(default=0.5, metadata=_rng(
+        0.0, 1.0, doc="at most this fraction of the sensors is scaled down"))
 
 
 @dataclass(frozen=True)
@@ -406,7 +420,9 @@ def _type_name(tp: Any) -> str:
         return "a mapping"
     if dataclasses.is_dataclass(tp):
         return "a mapping"
-    return {float: "a number", int: "an integer", str: "a string", bool: "true or false", Path: "a file path"}.get(tp, str(tp))
+    return {float: "a number", int: "an integer", str: "a string", bool: "true or false", Path: "a file path"}.get(
+        tp, str(tp)
+    )
 
 
 def _convert(value: Any, tp: Any, key: str, base: Path) -> Any:

@@ -472,7 +472,8 @@ def _png_header_bomb(width: int, height: int) -> bytes:
     def chunk(tag: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64))
+            + chunk(b"IEND", b""))
 
 
 def m_compressed(rng, scene):
@@ -501,7 +502,9 @@ def m_compressed(rng, scene):
             rng.integers(0, 255, (CAM_H, CAM_W, int(_choice(rng, [1, 4]))), dtype=np.uint8)
         e.fields["data"] = cv2.imencode(".png", img)[1].tobytes()
     elif kind == 6:  # header claims a huge image
-        e.fields["data"] = _png_header_bomb(int(_choice(rng, [30000, 65535, 2**31 - 1])), int(_choice(rng, [30000, 65535, 1])))
+        e.fields["data"] = _png_header_bomb(
+            int(_choice(rng, [30000, 65535, 2**31 - 1])), int(_choice(rng, [30000, 65535, 1]))
+        )
     elif kind == 7:  # jpeg cut before its end marker
         jpg = cv2.imencode(".jpg", _image(2, TAC_H, TAC_W))[1].tobytes()
         e.fields["data"] = jpg[: len(jpg) - int(rng.integers(2, len(jpg) // 2))]
@@ -549,7 +552,8 @@ def m_camera_info(rng, scene):
 def m_tf_values(rng, scene):
     """NaN, inf, zero or huge values in a transform (TF or ground truth)."""
     e = _pick(rng, scene, (rm.TF_MESSAGE, rm.POSE_STAMPED))
-    target = e.fields["transforms"][int(rng.integers(len(e.fields["transforms"])))] if e.type == rm.TF_MESSAGE else e.fields
+    target = (e.fields["transforms"][int(rng.integers(len(e.fields["transforms"])))] if e.type == rm.TF_MESSAGE
+              else e.fields)
     kind = int(rng.integers(4))
     if kind == 0:
         target["t"] = list(target["t"])
@@ -595,7 +599,8 @@ def m_stamps(rng, scene):
     elif kind == 1:  # one stamp moved anywhere
         e = _pick(rng, scene, (rm.IMAGE, rm.COMPRESSED_IMAGE, rm.CAMERA_INFO, rm.TF_MESSAGE, rm.POSE_STAMPED,
                                rm.JOINT_STATE, rm.WRENCH_STAMPED))
-        h = e.fields["transforms"][0]["header"] if e.type == rm.TF_MESSAGE and e.fields["transforms"] else e.fields.get("header")
+        h = (e.fields["transforms"][0]["header"] if e.type == rm.TF_MESSAGE and e.fields["transforms"]
+             else e.fields.get("header"))
         if h is not None:
             _stamp(rng, h)
     elif kind == 2:  # log times out of order
@@ -644,7 +649,9 @@ def m_cdr(rng, scene):
             data[i] ^= 1 << int(rng.integers(8))
     elif kind == 3:
         # encapsulation: big-endian CDR, XCDR2, garbage, PL_CDR_LE
-        data[0:4] = [b"\x00\x00\x00\x00", b"\x00\x07\x00\x00", b"\xff\xff\xff\xff", b"\x00\x03\x00\x00"][int(rng.integers(4))]
+        data[0:4] = [b"\x00\x00\x00\x00", b"\x00\x07\x00\x00", b"\xff\xff\xff\xff", b"\x00\x03\x00\x00"][
+            int(rng.integers(4))
+        ]
     elif kind == 4 and len(data) >= 8:  # a length-like u32 (4-aligned) set to a huge value
         i = 4 + 4 * int(rng.integers((len(data) - 4) // 4))
         data[i : i + 4] = struct.pack("<I", int(_choice(rng, [2**31, 2**32 - 1, 0x7FFFFFF0, 1 << 24])))
@@ -690,7 +697,9 @@ def m_messages(rng, scene):
         del scene.events[int(rng.integers(len(scene.events)))]
     elif kind == 1:
         e = scene.events[int(rng.integers(len(scene.events)))]
-        scene.events.append(Event(e.log_time, e.topic, e.type, json.loads(json.dumps(e.fields, default=_jsonable)), e.raw))
+        scene.events.append(
+            Event(e.log_time, e.topic, e.type, json.loads(json.dumps(e.fields, default=_jsonable)), e.raw)
+        )
     else:
         topic = str(_choice(rng, sorted({e.topic for e in scene.events})))
         scene.events = [e for e in scene.events if e.topic != topic]
@@ -1083,7 +1092,9 @@ def signature(outcome: str, detail: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--count", type=int, default=1000, help="number of mutated inputs (default 1000)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the input generator (default 0)")
     ap.add_argument("--timeout", type=float, default=30.0, help="time limit per command and input [s] (default 30)")
@@ -1106,7 +1117,9 @@ def main(argv: list[str] | None = None) -> int:
     failure_counts: Counter = Counter()
     master = np.random.default_rng(args.seed)
     specs = [random_spec(master) for _ in range(args.count)]  # the same inputs whatever --jobs is
-    kinds = Counter([f"msg:{n}" for sp in specs for n, _ in sp.message] + [f"byte:{n}" for sp in specs for n, _ in sp.byte])
+    kinds = Counter(
+        [f"msg:{n}" for sp in specs for n, _ in sp.message] + [f"byte:{n}" for sp in specs for n, _ in sp.byte]
+    )
     cpu = [0.0]
     lock = threading.Lock()
     pending = iter(range(args.count))
@@ -1168,7 +1181,7 @@ def main(argv: list[str] | None = None) -> int:
             if crashed:
                 raise crashed[0]
             if args.shrink:
-                for sig, (i, spec, data, outcome, detail) in list(failures.items()):
+                for sig, (i, spec, _data, outcome, detail) in list(failures.items()):
                     command = sig.split(":", 1)[0]
                     small, small_data = shrink(workers[0], spec, config, folder, command, sig.split(": ", 1)[1])
                     failures[sig] = (i, small, small_data, outcome, detail)
@@ -1192,7 +1205,7 @@ def main(argv: list[str] | None = None) -> int:
     if failures:
         args.keep.mkdir(parents=True, exist_ok=True)
         print(f"{len(failures)} distinct failures (smallest input of each in {args.keep}):")
-        for k, (sig, (i, spec, data, outcome, detail)) in enumerate(sorted(failures.items())):
+        for k, (sig, (i, spec, data, _outcome, detail)) in enumerate(sorted(failures.items())):
             stem = f"failure_{k:03d}"
             (args.keep / f"{stem}.mcap").write_bytes(data)
             (args.keep / f"{stem}.txt").write_text(f"{sig}\ninput {i}: {spec.describe()}\n\n{detail}\n")

@@ -32,7 +32,9 @@ def main(argv: list[str]) -> int:
     (REPO / "sample_logs").mkdir(exist_ok=True)
     for name in args.objects:
         out = REPO / "sample_logs" / f"{name}.mcap"
-        summary = simulate(name, SEED, out, SimulateOptions(episode=EpisodeOptions(frames=args.frames), jpeg_quality=85))
+        summary = simulate(
+            name, SEED, out, SimulateOptions(episode=EpisodeOptions(frames=args.frames), jpeg_quality=85)
+        )
         write_scene_config(name, REPO / "configs" / f"{name}.yaml")
         (REPO / "configs" / "objects").mkdir(exist_ok=True)
         write_object_file(builtin_object_file(name), REPO / "configs" / "objects" / f"{name}.yaml", OBJECT_FILE_HEADER)

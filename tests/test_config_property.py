@@ -72,7 +72,9 @@ def _item_type(tp: Any) -> Any | None:
     return None
 
 
-def _walk(cls: type, key: str, path: tuple, data: Any, leaves: list[Leaf], nodes: list[tuple[str, tuple, type]]) -> None:
+def _walk(
+    cls: type, key: str, path: tuple, data: Any, leaves: list[Leaf], nodes: list[tuple[str, tuple, type]]
+) -> None:
     """Collect the fields (leaves) and mapping nodes under dataclass ``cls`` at ``path``."""
     nodes.append((key, path, cls))
     hints = typing.get_type_hints(cls)

@@ -62,7 +62,9 @@ def _episode_options(frames: int):
 def _simulate_options(frames: int):
     from ..pipelines.simulate import SimulateOptions
 
-    return SimulateOptions(episode=_episode_options(frames), image_format="raw", tactile_format="raw", compression="none")
+    return SimulateOptions(
+        episode=_episode_options(frames), image_format="raw", tactile_format="raw", compression="none"
+    )
 
 
 def _write_config(object_name: str, path: Path) -> None:

@@ -115,7 +115,10 @@ def benchmark_render(
                 full = Roi.full(s.camera)
                 observed[s.name] = fast.render_masks(mesh_id, s.T_sensor_object, s.camera, full, **mode)[0]
 
-            def score_all(T_true_particles: np.ndarray, renderer, per_pose: bool) -> list[tuple[int, int]]:
+            def score_all(
+                T_true_particles: np.ndarray, renderer, per_pose: bool,
+                sensors=sensors, mesh_id=mesh_id, observed=observed,
+            ) -> list[tuple[int, int]]:
                 shapes = []
                 for s in sensors:
                     mode = dict(mode="tactile", gel_distance_m=GEL_DISTANCE_M) if s.tactile else {}

@@ -499,9 +499,9 @@ class EnvironmentSDF:
     in cells that straddle an edge, a corner or the medial axis (near the rim of a hole,
     midway between two walls): at 0.25 mm, 0.12 mm at worst, 0.02 mm at the 99th percentile
     of random points around the pocket block. The sign is the parity of ray crossings, exact
-    for watertight meshes (no disagreement with the winding number at 6000 socket nodes). Outside the grid box the value is
-    the value at the nearest point of the box plus the distance to the box: the grid knows
-    nothing of environment surfaces outside its box.
+    for watertight meshes (no disagreement with the winding number at 6000 socket nodes).
+    Outside the grid box the value is the value at the nearest point of the box plus the
+    distance to the box: the grid knows nothing of environment surfaces outside its box.
     """
 
     def __init__(self, values: np.ndarray, origin: np.ndarray, spacing_m: float):

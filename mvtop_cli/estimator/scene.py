@@ -49,7 +49,9 @@ class SceneModel:
         self.warnings: list[dict] = []
         notes: list[str] = []
         object_closed = bool({"tactile", "contact"} & set(cfg.modalities))
-        self.object_mesh = load_mesh(cfg.object.mesh, cfg.object.units, "object mesh", closed=object_closed, notes=notes)
+        self.object_mesh = load_mesh(
+            cfg.object.mesh, cfg.object.units, "object mesh", closed=object_closed, notes=notes
+        )
         _check_size(self.object_mesh, cfg.object.mesh, "object.units", cfg.object.units,
                     _MIN_OBJECT_EXTENT_M, _MAX_OBJECT_EXTENT_M, "a part held in a gripper")
         self.renderer = NumbaMaskRenderer()
@@ -150,5 +152,6 @@ def _check_size(mesh: trimesh.Trimesh, path, key: str, units: str, lo_m: float, 
     fix = (f"is it in {'millimetres' if hint == 'mm' else 'metres'} (set {key}: {hint!r})?" if hint
            else "check the mesh's scale")
     raise MeshError(
-        f"{path}: mesh is {extent:g} m across with {key}: {units!r}, but {what} is {1e3 * lo_m:g} mm to {hi_m:g} m; {fix}"
+        f"{path}: mesh is {extent:g} m across with {key}: {units!r}, "
+        f"but {what} is {1e3 * lo_m:g} mm to {hi_m:g} m; {fix}"
     )

@@ -146,7 +146,8 @@ def render_markdown(report: dict) -> str:
     """report.md: inputs, the final frame, per-frame aggregates and the per-frame table."""
     fr = report["frames"]
     gt = report["ground_truth"]
-    src = f"log `{gt.get('log')}`, topic `{gt.get('topic')}`" if gt["source"] == "log" else f"file `{gt.get('file')}` (final frame only)"
+    src = (f"log `{gt.get('log')}`, topic `{gt.get('topic')}`" if gt["source"] == "log"
+           else f"file `{gt.get('file')}` (final frame only)")
     parts = [
         f"# mvtop evaluation: {report['object']}",
         "",
@@ -169,7 +170,8 @@ def render_markdown(report: dict) -> str:
         (f"Insertable in {_fmt(100 * fr['insertable_fraction'], 1)} % of frames; "
          if fr["insertable_fraction"] is not None else "Insertable: n/a (no clearance configured); ")
         + f"NEES within the 95 % chi-square bound "
-        f"({_fmt(report['final']['nees_bound'], 2)}, 6 dof) in {_fmt(100 * fr['nees_within_bound_fraction'], 1)} % of frames. "
+        f"({_fmt(report['final']['nees_bound'], 2)}, 6 dof) "
+        f"in {_fmt(100 * fr['nees_within_bound_fraction'], 1)} % of frames. "
         f"Per-frame NEES uses a {fr['nees_covariance']}.",
         "",
         "## Per frame",
@@ -179,7 +181,11 @@ def render_markdown(report: dict) -> str:
     parts.append(_md_table(header, body))
     if note:
         parts += ["", note]
-    parts += ["", "Definitions: docs/metrics.md. Errors use the symmetric equivalent of the estimate closest to the truth.", ""]
+    parts += [
+        "",
+        "Definitions: docs/metrics.md. Errors use the symmetric equivalent of the estimate closest to the truth.",
+        "",
+    ]
     return "\n".join(parts)
 
 
@@ -209,7 +215,8 @@ class _LogAxis:
 
     def frame(self, width: int, height: int, ml: float, mt: float, pw: float, ph: float, title: str) -> list[str]:
         """The SVG's opening tags: title, plot frame, decade grid lines and labels, minor ticks."""
-        out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
+        out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+               f'viewBox="0 0 {width} {height}" '
                'font-family="sans-serif" font-size="11">',
                f'<text x="{ml}" y="16" font-size="13" font-weight="bold">{html.escape(title)}</text>',
                f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>']
@@ -396,7 +403,8 @@ def svg_log_boxplot(
                f'{html.escape(ylabel)} (log scale)</text>')
     for gi, gname in enumerate(groups):
         gx = ml + gi * group_w + gap / 2
-        out.append(f'<text x="{gx + ns * box_w / 2:.1f}" y="{mt + ph + 16}" text-anchor="middle">{html.escape(gname)}</text>')
+        out.append(f'<text x="{gx + ns * box_w / 2:.1f}" y="{mt + ph + 16}" text-anchor="middle">'
+                   f'{html.escape(gname)}</text>')
         for si, (sname, _) in enumerate(series):
             v = np.sort(vals[si][gi]) if gi < len(vals[si]) else np.zeros(0)
             if len(v) == 0:

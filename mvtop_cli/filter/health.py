@@ -71,7 +71,8 @@ def step_warnings(frame: int, diagnostics: dict, n_particles: int) -> list[dict]
             numbers = {"min_ess": before, "min_ess_after_retry": after, "recovered": bool(retry["recovered"])}
         else:
             before = float(diagnostics.get("min_ess", 0.0))
-            detail = f"effective sample size fell to {before:.1f} of {n_particles} particles (threshold {threshold:.1f})"
+            detail = (f"effective sample size fell to {before:.1f} of {n_particles} particles "
+                      f"(threshold {threshold:.1f})")
             numbers = {"min_ess": before, "recovered": False}
         out.append(warning(frame, "ess_collapsed", detail, threshold=threshold, **numbers))
     elif "tempering_forced" in flags:

@@ -35,7 +35,9 @@ def ess_from_log_weights(log_weights: np.ndarray) -> float:
     return float(np.exp(-logsumexp(2.0 * lw)))
 
 
-def largest_exponent(log_weights: np.ndarray, log_likelihood: np.ndarray, max_exponent: float, goal_ess: float) -> float:
+def largest_exponent(
+    log_weights: np.ndarray, log_likelihood: np.ndarray, max_exponent: float, goal_ess: float
+) -> float:
     """The largest ``b`` in [0, max_exponent] whose tempered reweighting ``w L^b`` keeps an
     effective sample size of at least ``goal_ess`` (bisection, 60 halvings; ``max_exponent``
     itself when it keeps it). Particles with a non-finite log-likelihood (N,) get weight zero.

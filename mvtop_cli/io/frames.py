@@ -142,7 +142,9 @@ def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
     model = str(msg.distortion_model) or "plumb_bob"
     D = np.asarray(msg.d, dtype=np.float64)
     if not np.all(np.isfinite(D)):
-        raise LogError(f"topic {topic!r}: CameraInfo has distortion coefficients d={D.tolist()} (expected finite numbers)")
+        raise LogError(
+            f"topic {topic!r}: CameraInfo has distortion coefficients d={D.tolist()} (expected finite numbers)"
+        )
     if np.any(D != 0) and model not in _DISTORTION_MODELS:
         raise LogError(
             f"topic {topic!r}: CameraInfo distortion model {model!r} is not supported "
@@ -151,7 +153,8 @@ def camera_from_info(msg: Any, topic: str = "") -> PinholeCamera:
     if np.any(D != 0) and len(D) not in _DISTORTION_COUNTS[model]:
         expected = " or ".join(str(n) for n in _DISTORTION_COUNTS[model])
         raise LogError(
-            f"topic {topic!r}: CameraInfo has {len(D)} distortion coefficients for model {model!r} (expected {expected})"
+            f"topic {topic!r}: CameraInfo has {len(D)} distortion coefficients for model {model!r} "
+            f"(expected {expected})"
         )
     return PinholeCamera(width=width, height=height, K=K, distortion_model=model, distortion=D)
 
@@ -284,7 +287,9 @@ class FrameReader:
             and self._require(t.wrench, (rm.WRENCH_STAMPED,), "contact from force", optional=True)
         )
         if self._has_wrench and not t.contact_force_on_n > t.contact_force_off_n >= 0:
-            raise ValueError(f"contact force thresholds need on > off >= 0, got {t.contact_force_on_n}, {t.contact_force_off_n}")
+            raise ValueError(
+                f"contact force thresholds need on > off >= 0, got {t.contact_force_on_n}, {t.contact_force_off_n}"
+            )
         self._has_joints = t.joint_states is not None and self._require(
             t.joint_states, (rm.JOINT_STATE,), "finger opening", optional=True
         )
@@ -427,7 +432,8 @@ class FrameReader:
         rgb = cv2.remap(rgb, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         if depth is not None:
             depth = cv2.remap(depth, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-        pinhole = PinholeCamera(width=camera.width, height=camera.height, K=camera.K, distortion_model=camera.distortion_model,
+        pinhole = PinholeCamera(width=camera.width, height=camera.height, K=camera.K,
+                                distortion_model=camera.distortion_model,
                                 distortion=np.zeros_like(np.asarray(camera.distortion, dtype=np.float64)))
         return rgb, depth, pinhole
 

@@ -445,7 +445,8 @@ class _McapFile:
             raise self._corrupt("chunk", offset, f"decompressed to {len(payload)} bytes; expected {expected}")
         if crc != 0 and zlib.crc32(payload) != crc:
             raise self._corrupt(
-                "chunk", offset, f"CRC 0x{zlib.crc32(payload):08x} does not match the stored 0x{crc:08x}; expected {expected}"
+                "chunk", offset,
+                f"CRC 0x{zlib.crc32(payload):08x} does not match the stored 0x{crc:08x}; expected {expected}",
             )
         return payload, compression
 
@@ -529,7 +530,8 @@ def bag_files(path: str | Path) -> list[Path]:
             info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
         except Exception as err:
             raise LogError(
-                f"{meta}: not a rosbag2 metadata file ({type(err).__name__}: {err}; expected rosbag2_bagfile_information)"
+                f"{meta}: not a rosbag2 metadata file "
+                f"({type(err).__name__}: {err}; expected rosbag2_bagfile_information)"
             ) from err
         storage = info.get("storage_identifier", "mcap")
         if storage != "mcap":
@@ -665,7 +667,9 @@ class McapLog:
             if st.count >= 2 and st.last > st.first:
                 rate = (st.count - 1) / ((st.last - st.first) * 1e-9)
             topics.append(
-                TopicInfo(name, e["type"], e["schema_encoding"], e["message_encoding"], st.count, st.first, st.last, rate)
+                TopicInfo(
+                    name, e["type"], e["schema_encoding"], e["message_encoding"], st.count, st.first, st.last, rate
+                )
             )
         firsts = [t.first_ns for t in topics if t.first_ns is not None]
         lasts = [t.last_ns for t in topics if t.last_ns is not None]
@@ -694,7 +698,8 @@ class McapLog:
             if not summary.has_topic(name):
                 want = f"{expected} " if expected else ""
                 raise LogError(
-                    f"{self.path}: topic {name!r} not found (expected {want}messages; topics: {_list(summary.topic_names)})"
+                    f"{self.path}: topic {name!r} not found "
+                    f"(expected {want}messages; topics: {_list(summary.topic_names)})"
                 )
             actual = summary.topic(name).type
             if expected and normalize_type(actual) != normalize_type(expected):

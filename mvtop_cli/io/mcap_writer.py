@@ -222,7 +222,9 @@ class LogWriter:
         if schema_id is None:
             schema_id = self._writer.register_schema(type_name, "ros2msg", rm.definition(type_name).encode())
             self._schema_ids[type_name] = schema_id
-        qos = _QOS.format(depth=1 if topic.endswith("tf_static") else 10, durability=1 if topic.endswith("tf_static") else 2)
+        qos = _QOS.format(
+            depth=1 if topic.endswith("tf_static") else 10, durability=1 if topic.endswith("tf_static") else 2
+        )
         cid = self._writer.register_channel(topic, "cdr", schema_id, {"offered_qos_profiles": qos})
         self._channels[topic] = (cid, type_name)
         return cid

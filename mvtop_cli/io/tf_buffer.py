@@ -108,7 +108,10 @@ class TfBuffer:
 
     def _edge(self, parent: str, child: str, static: bool) -> _Edge:
         if parent == child:
-            raise LogError(f"{self.source}: transform from frame {child!r} to itself (expected a child frame other than its parent)")
+            raise LogError(
+                f"{self.source}: transform from frame {child!r} to itself "
+                "(expected a child frame other than its parent)"
+            )
         edge = self._edges.get(child)
         if edge is None:
             edge = self._edges[child] = _Edge(parent=parent)

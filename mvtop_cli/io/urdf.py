@@ -44,7 +44,9 @@ class UrdfKinematics:
             self.robot.update_cfg(cfg)
         return {link: np.asarray(self.robot.get_transform(link, self.root), dtype=np.float64) for link in self.links}
 
-    def add_to_tf(self, tf, stamps_ns: list[int], names: list[list[str]], positions: list[list[float]], skip: set[str]) -> None:
+    def add_to_tf(
+        self, tf, stamps_ns: list[int], names: list[list[str]], positions: list[list[float]], skip: set[str]
+    ) -> None:
         """Add each link (but those in ``skip``, already in the log's TF) as a dynamic edge from
         the root link to ``tf`` (a TfBuffer), one sample per joint-state message."""
         for t, n, p in zip(stamps_ns, names, positions):

@@ -27,7 +27,9 @@ def belief_probability(rendered: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return (w @ rendered.reshape(P, -1).astype(np.float64)).reshape(h, wd).astype(np.float32)
 
 
-def grabcut_from_belief(image: np.ndarray, probability: np.ndarray, iterations: int = 4, seed: int = 0) -> np.ndarray | None:
+def grabcut_from_belief(
+    image: np.ndarray, probability: np.ndarray, iterations: int = 4, seed: int = 0
+) -> np.ndarray | None:
     """Object mask (h, w) bool in ``image`` (h, w, 3) uint8 RGB, GrabCut initialised from the
     belief ``probability`` (h, w); None when the belief covers no pixel surely or GrabCut
     fails. Deterministic for a given ``seed`` (GrabCut draws from OpenCV's RNG)."""

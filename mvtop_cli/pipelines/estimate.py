@@ -143,7 +143,8 @@ def estimate(
 
 
 def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, restored: Restored,
-                max_frames: int | None, total: int, progress: Callable[[int, int], None] | None, t_start: float) -> None:
+                max_frames: int | None, total: int, progress: Callable[[int, int], None] | None,
+                t_start: float) -> None:
     """The frame loop: replay the ``restored.frames_done`` frames a resumed run has done
     (the reader's grouping and skip list, and the tactile reference images, come out as in
     the first run), restore the particles and the generator, then step the filter and
@@ -192,6 +193,8 @@ def _remove_if_empty(folder: Path) -> None:
 
 
 def _count_frames(log: McapLog, sensors: list[SensorTopics], max_frames: int | None) -> int:
-    counts = [log.summary().topic(s.image_topic).message_count for s in sensors if log.summary().has_topic(s.image_topic)]
+    counts = [
+        log.summary().topic(s.image_topic).message_count for s in sensors if log.summary().has_topic(s.image_topic)
+    ]
     n = max(counts) if counts else 0
     return min(n, max_frames) if max_frames else n

@@ -109,7 +109,9 @@ def read_track(track_dir: Path) -> Track:
     header = [h.strip() for h in rows[0]]
     missing = [c for c in TRACK_COLUMNS if c not in header]
     if missing:
-        raise TrackError(f"{csv_path}: missing column(s) {', '.join(missing)} (expected the columns of mvtop estimate's track.csv)")
+        raise TrackError(
+            f"{csv_path}: missing column(s) {', '.join(missing)} (expected the columns of mvtop estimate's track.csv)"
+        )
     body = [(i + 2, r) for i, r in enumerate(rows[1:]) if any(cell.strip() for cell in r)]
     if not body:
         raise TrackError(f"{csv_path}: no frames (expected one line per frame after the header)")
@@ -133,10 +135,15 @@ def read_track(track_dir: Path) -> Track:
         bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
         if len(bad):
             raise TrackError(
-                f"{csv_path}: line {body[bad[0]][0]}: quaternion {name} has norm {norms[bad[0]]:.6g} (expected a unit quaternion)"
+                f"{csv_path}: line {body[bad[0]][0]}: quaternion {name} has norm {norms[bad[0]]:.6g} "
+                "(expected a unit quaternion)"
             )
-    T_world = se3.from_quat_xyzw(q / np.linalg.norm(q, axis=1, keepdims=True), np.stack([d["x_m"], d["y_m"], d["z_m"]], axis=1))
-    T_ee = se3.from_quat_xyzw(qe / np.linalg.norm(qe, axis=1, keepdims=True), np.stack([d["ee_x_m"], d["ee_y_m"], d["ee_z_m"]], axis=1))
+    T_world = se3.from_quat_xyzw(
+        q / np.linalg.norm(q, axis=1, keepdims=True), np.stack([d["x_m"], d["y_m"], d["z_m"]], axis=1)
+    )
+    T_ee = se3.from_quat_xyzw(
+        qe / np.linalg.norm(qe, axis=1, keepdims=True), np.stack([d["ee_x_m"], d["ee_y_m"], d["ee_z_m"]], axis=1)
+    )
     summary = _read_summary(track_dir / "summary.json", int(stamps[-1]))
     return Track(
         path=track_dir, frames=frames, stamps_ns=stamps, T_world_object=T_world, T_ee_object=T_ee,
@@ -198,7 +205,9 @@ def read_gt_file(path: Path) -> np.ndarray:
     values = {}
     for key, n in zip(GT_FILE_KEYS, (3, 4)):
         v = data.get(key)
-        ok = isinstance(v, list) and len(v) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        ok = isinstance(v, list) and len(v) == n and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v
+        )
         if not ok or not all(math.isfinite(x) for x in v):
             raise ConfigError(f"{path}: {key}: expected a list of {n} numbers, got {v!r}")
         values[key] = np.asarray(v, dtype=np.float64)
@@ -478,7 +487,12 @@ def _stats(values: np.ndarray) -> dict[str, float | None]:
     v = v[np.isfinite(v)]
     if len(v) == 0:
         return {"median": None, "p95": None, "mean": None, "max": None}
-    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "mean": float(v.mean()), "max": float(v.max())}
+    return {
+        "median": float(np.median(v)),
+        "p95": float(np.percentile(v, 95)),
+        "mean": float(v.mean()),
+        "max": float(v.max()),
+    }
 
 
 # Report keys: (name in the report, key in score_poses' output, factor from SI)
@@ -557,14 +571,19 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
     diag = np.zeros((n, 6, 6))
     diag[:, [0, 1, 2], [0, 1, 2]] = track.std_translation_m[:, None] ** 2
     diag[:, [3, 4, 5], [3, 4, 5]] = track.std_rotation_rad[:, None] ** 2
-    scores = score_poses(model, track.T_world_object[idx], T_gt[idx], track.T_ee_object[idx], T_world_ee[idx], diag[idx])
+    scores = score_poses(model, track.T_world_object[idx], T_gt[idx], track.T_ee_object[idx], T_world_ee[idx],
+                         diag[idx])
     final_scores = score_poses(model, track.T_world_object[-1:], T_gt[-1:], track.T_ee_object[-1:], T_world_ee[-1:],
                                track.final_covariance_ee[None])
     bound = M.chi2_bound(6, NEES_PROBABILITY)
     t0 = int(track.stamps_ns[0])
 
     def when(i: int) -> dict[str, Any]:
-        return {"frame": int(track.frames[i]), "stamp_ns": int(track.stamps_ns[i]), "time_s": (int(track.stamps_ns[i]) - t0) * 1e-9}
+        return {
+            "frame": int(track.frames[i]),
+            "stamp_ns": int(track.stamps_ns[i]),
+            "time_s": (int(track.stamps_ns[i]) - t0) * 1e-9,
+        }
 
     per_frame = []
     for j, i in enumerate(idx):
@@ -625,7 +644,9 @@ def _ground_truth(track: Track, log: Path | None, gt_file: Path | None, config: 
         T_gt[-1] = read_gt_file(Path(gt_file))
         return T_gt, {"source": "file", "file": str(gt_file), "frames": "final"}
     if log is None:
-        raise MvtopError("no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose")
+        raise MvtopError(
+            "no ground truth: give the log with its ground-truth topic, or a --gt file with the final pose"
+        )
     topic = config.topics.ground_truth
     tol = int(round(config.sync_tolerance_s * 1e9))
     T_gt, extra = ground_truth_from_log(Path(log), config, track.stamps_ns)
@@ -698,7 +719,9 @@ def aggregate(reports: list[dict]) -> dict:
         f = r.get("final") if isinstance(r, dict) else None
         if not isinstance(f, dict) or "insertable" not in f or "translation_error_mm" not in f:
             where = r.get("track_dir", f"report {i}") if isinstance(r, dict) else f"report {i}"
-            raise MvtopError(f"{where}: final.insertable / final.translation_error_mm missing (expected an mvtop eval report)")
+            raise MvtopError(
+                f"{where}: final.insertable / final.translation_error_mm missing (expected an mvtop eval report)"
+            )
         finals.append((r.get("object", "?"), f))
 
     def block(items: list[dict]) -> dict:

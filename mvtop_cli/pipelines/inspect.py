@@ -104,7 +104,9 @@ def inspect_log(
         ]
         timing = _image_timing(log, image_topics) if image_topics else {}
     known = set(frames or ()) | set(urdf_frames)
-    missing_frames = tuple(f for f in required_frames if (frames is None and not urdf_frames) or f.lstrip("/") not in known)
+    missing_frames = tuple(
+        f for f in required_frames if (frames is None and not urdf_frames) or f.lstrip("/") not in known
+    )
     return InspectReport(
         summary=summary,
         required_topics=required_topics,
@@ -157,7 +159,9 @@ def _table(header: list[str], rows: list[list[str]], right: set[int]) -> list[st
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
 
     def line(cells: list[str]) -> str:
-        return "  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+        return "  ".join(
+            c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
+        ).rstrip()
 
     return [line(header), line(["-" * w for w in widths])] + [line(r) for r in rows]
 

@@ -129,10 +129,15 @@ def render_masks(
             for name, img in [*frame.cameras.items(), *frame.tactile.items()]:
                 tactile = name in frame.tactile
                 full = Roi.full(img.camera)
-                occ = [] if tactile else scene.occluders(img.T_world_sensor, lambda f: reader.tf.lookup(cfg.frames.world, f, img.stamp_ns))
-                kw = dict(mode="tactile", gel_distance_m=gel[name], penetration_threshold_m=cfg.masking.tactile_depth_threshold_m) if tactile else {}
+                occ = [] if tactile else scene.occluders(
+                    img.T_world_sensor, lambda f, img=img: reader.tf.lookup(cfg.frames.world, f, img.stamp_ns)
+                )
+                kw = dict(
+                    mode="tactile", gel_distance_m=gel[name],
+                    penetration_threshold_m=cfg.masking.tactile_depth_threshold_m,
+                ) if tactile else {}
 
-                def render(T_world_object):
+                def render(T_world_object, img=img, full=full, occ=occ, kw=kw):
                     if T_world_object is None:
                         return None
                     T = se3.invert(img.T_world_sensor) @ T_world_object

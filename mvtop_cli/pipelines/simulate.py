@@ -86,7 +86,9 @@ def _cable(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A 3 mm cable hanging from above the object, in the object frame."""
     length = rng.uniform(0.05, 0.09)
     cyl = trimesh.creation.cylinder(radius=0.0015, height=length, sections=16)
-    tilt = se3.make_pose(se3.rotvec_to_matrix(np.array([rng.uniform(0.3, 0.8), rng.uniform(-0.8, 0.8), 0.0])), np.zeros(3))
+    tilt = se3.make_pose(
+        se3.rotvec_to_matrix(np.array([rng.uniform(0.3, 0.8), rng.uniform(-0.8, 0.8), 0.0])), np.zeros(3)
+    )
     offset = se3.make_pose(np.eye(3), [rng.uniform(-0.01, 0.01), rng.uniform(-0.02, -0.012), 0.02 + length / 2])
     return cyl, offset @ tilt
 
@@ -101,7 +103,9 @@ def simulate(
     """Simulate one episode of ``object_name`` (a built-in object's name, an object file's path
     or an ObjectSpec) with ``seed`` and write the log to ``out``."""
     if options.image_format not in ("jpeg", "png", "raw") or options.tactile_format not in ("jpeg", "png", "raw"):
-        raise MvtopError(f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}")
+        raise MvtopError(
+            f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}"
+        )
     if options.kinematics not in KINEMATICS:
         raise MvtopError(f"kinematics must be one of {', '.join(KINEMATICS)}, got {options.kinematics!r}")
     spec = resolve_object(object_name)
@@ -166,8 +170,8 @@ def simulate(
                 _write_robot(log, st, options.kinematics)
             for k, st in enumerate(states):
                 _write_robot(log, st, options.kinematics)
-                _write_images(log, st, schedule[k], states, cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac,
-                              mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
+                _write_images(log, st, schedule[k], states, cameras, cam_renderer, tac_renderer, tac_camera,
+                              T_finger_tac, mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
                 if progress is not None:
                     progress(k + 1, len(states))
             for st in (s for s in robot_states if s.stamp_ns > states[-1].stamp_ns):  # held after them
@@ -241,7 +245,9 @@ def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states:
 
             linear = cv2.remap(linear, lens[0], lens[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rgb = apply_camera_effects(linear, photo, cam_rng)
-        _write_rgb(log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality)
+        _write_rgb(
+            log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality
+        )
         log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")
 
     for side in TACTILE_SIDES:
@@ -253,7 +259,9 @@ def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states:
         tac_renderer.set_pose("object", s.T_world_object)
         depth = tac_renderer.render_depth_only(tac_camera, T_world_tac, only="object")
         indentation = indentation_from_depth(depth, options.gel_distance_m)
-        img = render_tactile_image(indentation, mm_per_px, backgrounds[side], tac_rng, noise_std=options.tactile_noise_std)
+        img = render_tactile_image(
+            indentation, mm_per_px, backgrounds[side], tac_rng, noise_std=options.tactile_noise_std
+        )
         frame_id = f"tactile_{side}_optical"
         _write_rgb(log, f"/tactile/{side}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
         log.write_depth(f"/tactile/{side}/depth", indentation, t, frame_id)
@@ -314,13 +322,14 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     for S in spec.symmetry[1:]:
         sym.append(pose(S))
     cameras = [
-        {"name": n, "image_topic": f"/cameras/{n}/image{suffix[options.image_format]}", "info_topic": f"/cameras/{n}/camera_info",
-         "frame": f"{n}_optical"}
+        {"name": n, "image_topic": f"/cameras/{n}/image{suffix[options.image_format]}",
+         "info_topic": f"/cameras/{n}/camera_info", "frame": f"{n}_optical"}
         for n in ("front", "side")
     ]
     tactile = [
-        {"name": s, "image_topic": f"/tactile/{s}/image{suffix[options.tactile_format]}", "info_topic": f"/tactile/{s}/camera_info",
-         "depth_topic": f"/tactile/{s}/depth", "frame": f"tactile_{s}_optical", "gel_distance_m": gel_distance_m}
+        {"name": s, "image_topic": f"/tactile/{s}/image{suffix[options.tactile_format]}",
+         "info_topic": f"/tactile/{s}/camera_info", "depth_topic": f"/tactile/{s}/depth",
+         "frame": f"tactile_{s}_optical", "gel_distance_m": gel_distance_m}
         for s in TACTILE_SIDES
     ]
     cfg = {
@@ -341,7 +350,9 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
             {"name": "finger_right", "mesh": f"{mesh_dir}/finger.obj", "frame": "finger_right", "collide": False},
         ],
         "sensors": {"cameras": cameras, "tactile": tactile},
-        "grasp_prior": {"pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0},
+        "grasp_prior": {
+            "pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0
+        },
     }
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}

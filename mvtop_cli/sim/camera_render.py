@@ -82,7 +82,9 @@ class CameraSceneRenderer:
         T[:3, 3] += T[:3, :3] @ self._centre[name]
         self.scene.set_pose(self.nodes[name], pose=T)
 
-    def set_lights(self, T_world_key: np.ndarray, fill_position: np.ndarray, key_intensity: float, fill_intensity: float) -> None:
+    def set_lights(
+        self, T_world_key: np.ndarray, fill_position: np.ndarray, key_intensity: float, fill_intensity: float
+    ) -> None:
         self.scene.set_pose(self._key, pose=T_world_key)
         T = np.eye(4)
         T[:3, 3] = fill_position

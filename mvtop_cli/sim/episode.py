@@ -95,7 +95,9 @@ def apply_offset(offset: np.ndarray, T_ee_object: np.ndarray) -> np.ndarray:
     return se3.make_pose(offset[:3, :3] @ T_ee_object[:3, :3], T_ee_object[:3, 3] + offset[:3, 3])
 
 
-def centre_between_pads(T_ee_object: np.ndarray, vertices: np.ndarray, indentation_m: float) -> tuple[np.ndarray, float, float]:
+def centre_between_pads(
+    T_ee_object: np.ndarray, vertices: np.ndarray, indentation_m: float
+) -> tuple[np.ndarray, float, float]:
     """Shift the object along ee y so the two pads squeeze it symmetrically, and place the pads
     ``indentation_m`` inside its extent. Returns (T_ee_object, pad_left_y, pad_right_y) [m]."""
     y = se3.transform_points(T_ee_object, vertices)[:, 1]
@@ -167,7 +169,9 @@ def plan_episode(
                 Rotation.from_rotvec(np.radians(rng.normal(0.0, options.slip_rotation_deg, 3))).as_matrix(),
                 rng.normal(0.0, options.slip_translation_m, 3),
             )
-            T_ee_obj, pad_l, pad_r = centre_between_pads(apply_offset(slip, T_ee_obj), object_mesh.vertices, options.indentation_m)
+            T_ee_obj, pad_l, pad_r = centre_between_pads(
+                apply_offset(slip, T_ee_obj), object_mesh.vertices, options.indentation_m
+            )
         prev_ok = _lift_until_free(prev_ok, T_ee_obj, collider)
         T_ee, d = _descend_until_contact(prev_ok, target, T_ee_obj, collider)
         contact = d < CONTACT_DISTANCE_M
@@ -188,7 +192,9 @@ def _lift_until_free(T_ee: np.ndarray, T_ee_obj: np.ndarray, collider: Collider)
     raise RuntimeError("simulated object stays in collision 0.1 m above its contact pose")
 
 
-def _descend_until_contact(T_free: np.ndarray, T_target: np.ndarray, T_ee_obj: np.ndarray, collider: Collider) -> tuple[np.ndarray, float]:
+def _descend_until_contact(
+    T_free: np.ndarray, T_target: np.ndarray, T_ee_obj: np.ndarray, collider: Collider
+) -> tuple[np.ndarray, float]:
     """Move from the free pose ``T_free`` towards ``T_target`` (same orientation) and stop at the
     first contact: the last collision-free pose along the segment, found by bisection."""
     d = collider.distance(T_target @ T_ee_obj)

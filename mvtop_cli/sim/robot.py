@@ -42,7 +42,9 @@ WRIST_ROLL_OFFSET_M = (0.02, 0.0, -0.05)
 T_WORLD_BASE = se3.make_pose(Rotation.from_euler("z", -90.0, degrees=True).as_matrix(), [0.35, 0.40, 0.0])
 # Tool changer on the flange, tilted 20 deg about the flange y axis and turned about its z,
 # then the TCP 0.12 m out along the tool's z with the tool's z pointing down at the part.
-T_FLANGE_TOOL = se3.make_pose(Rotation.from_euler("xyz", [180.0, 20.0, 35.0], degrees=True).as_matrix(), [0.0, 0.0, -0.03])
+T_FLANGE_TOOL = se3.make_pose(
+    Rotation.from_euler("xyz", [180.0, 20.0, 35.0], degrees=True).as_matrix(), [0.0, 0.0, -0.03]
+)
 T_TOOL_EE = se3.make_pose(Rotation.from_euler("z", -12.0, degrees=True).as_matrix(), [0.004, -0.002, 0.12])
 T_FLANGE_EE = T_FLANGE_TOOL @ T_TOOL_EE
 
@@ -132,19 +134,25 @@ def urdf_text(gel_distance_m: float = 0.025) -> str:
     arm = [
         ("gantry_x_joint", "prismatic", _trans([0, 0, 0]), "1 0 0", '<limit lower="-2" upper="2" ' + big + "/>"),
         ("gantry_y_joint", "prismatic", _trans([0, 0, 0]), "0 1 0", '<limit lower="-2" upper="2" ' + big + "/>"),
-        ("gantry_z_joint", "prismatic", _trans([0, 0, GANTRY_HEIGHT_M]), "0 0 1", '<limit lower="-1" upper="1" ' + big + "/>"),
-        ("wrist_yaw_joint", "revolute", _trans(WRIST_YAW_OFFSET_M), "0 0 1", '<limit lower="-3.2" upper="3.2" ' + big + "/>"),
-        ("wrist_pitch_joint", "revolute", _trans(WRIST_PITCH_OFFSET_M), "0 1 0", '<limit lower="-1.5" upper="1.5" ' + big + "/>"),
-        ("wrist_roll_joint", "revolute", _trans(WRIST_ROLL_OFFSET_M), "1 0 0", '<limit lower="-3.2" upper="3.2" ' + big + "/>"),
+        ("gantry_z_joint", "prismatic", _trans([0, 0, GANTRY_HEIGHT_M]), "0 0 1",
+         '<limit lower="-1" upper="1" ' + big + "/>"),
+        ("wrist_yaw_joint", "revolute", _trans(WRIST_YAW_OFFSET_M), "0 0 1",
+         '<limit lower="-3.2" upper="3.2" ' + big + "/>"),
+        ("wrist_pitch_joint", "revolute", _trans(WRIST_PITCH_OFFSET_M), "0 1 0",
+         '<limit lower="-1.5" upper="1.5" ' + big + "/>"),
+        ("wrist_roll_joint", "revolute", _trans(WRIST_ROLL_OFFSET_M), "1 0 0",
+         '<limit lower="-3.2" upper="3.2" ' + big + "/>"),
     ]
     for (name, kind, T, axis, limit), (parent, child) in zip(arm, ARM_EDGES):
-        lines += [f'  <joint name="{name}" type="{kind}">', f'    <parent link="{parent}"/>', f'    <child link="{child}"/>',
+        lines += [f'  <joint name="{name}" type="{kind}">', f'    <parent link="{parent}"/>',
+                  f'    <child link="{child}"/>',
                   f"    {_origin(T)}", f'    <axis xyz="{axis}"/>', f"    {limit}", "  </joint>"]
     fixed = [("tool_mount", "flange", "tool0", T_FLANGE_TOOL), ("tcp", "tool0", "ee", T_TOOL_EE),
              ("tactile_left_mount", "finger_left", "tactile_left_optical", T_finger_tac),
              ("tactile_right_mount", "finger_right", "tactile_right_optical", T_finger_tac)]
     for name, parent, child, T in fixed:
-        lines += [f'  <joint name="{name}" type="fixed">', f'    <parent link="{parent}"/>', f'    <child link="{child}"/>',
+        lines += [f'  <joint name="{name}" type="fixed">', f'    <parent link="{parent}"/>',
+                  f'    <child link="{child}"/>',
                   f"    {_origin(T)}", "  </joint>"]
     # Each finger slides along its own -z (away from the part, i.e. along ee +-y), so a joint
     # value q puts its pad q from the TCP: T_ee_finger = R_finger @ T(-q z).

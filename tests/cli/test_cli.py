@@ -17,7 +17,9 @@ REAL = REPO.parent / "shared" / "data" / "real" / "rosbag2_mcap"
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """Run the installed console script as a user would (real exit codes, real streams)."""
-    return subprocess.run([sys.executable, "-m", "mvtop_cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "mvtop_cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300
+    )
 
 
 def one_error_line(proc: subprocess.CompletedProcess) -> str:
@@ -102,7 +104,9 @@ def test_simulate_list_and_unknown_object(tmp_path):
 
 
 def test_simulate_bad_options(tmp_path):
-    line = one_error_line(run("simulate", "--object", "cube", "--out", str(tmp_path / "x.mcap"), "--resolution", "640by480"))
+    line = one_error_line(
+        run("simulate", "--object", "cube", "--out", str(tmp_path / "x.mcap"), "--resolution", "640by480")
+    )
     assert "--resolution" in line
     line = one_error_line(run("simulate", "--object", "cube", "--out", str(tmp_path / "x.txt")))
     assert "x.txt" in line and ".mcap" in line
@@ -111,7 +115,9 @@ def test_simulate_bad_options(tmp_path):
 def test_simulate_writes_a_log_that_inspect_accepts(tmp_path):
     out = tmp_path / "plug.mcap"
     cfg = tmp_path / "plug.yaml"
-    proc = run("simulate", "--object", "plug", "--seed", "4", "--frames", "6", "--out", str(out), "--write-config", str(cfg))
+    proc = run(
+        "simulate", "--object", "plug", "--seed", "4", "--frames", "6", "--out", str(out), "--write-config", str(cfg)
+    )
     assert proc.returncode == 0, proc.stderr
     assert "6 frames" in proc.stdout
     check = run("inspect", str(out), "--config", str(cfg))
@@ -154,7 +160,9 @@ def test_estimate_writes_the_track_folder(tmp_path):
     assert ev.returncode == 0, ev.stderr
     report = __import__("json").loads((out / "eval" / "report.json").read_text())
     assert f"final error {report['final']['translation_error_mm']:.3f} mm" in ev.stdout
-    assert sorted(p.name for p in (out / "eval").iterdir()) == ["estimates_bop.csv", "report.html", "report.json", "report.md"]
+    assert sorted(p.name for p in (out / "eval").iterdir()) == [
+        "estimates_bop.csv", "report.html", "report.json", "report.md"
+    ]
     line = one_error_line(run("eval", str(out)))
     assert "no ground truth" in line
 

@@ -26,10 +26,15 @@ def _mask(path: Path) -> np.ndarray:
 
 def test_render_masks_with_a_track(tmp_path):
     track = tmp_path / "track"
-    est = run("estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(track), "--particles", "100", "--max-frames", "3")
+    est = run(
+        "estimate", str(SAMPLE), "--config", str(CONFIG), "--out", str(track), "--particles", "100", "--max-frames", "3"
+    )
     assert est.returncode == 0, est.stderr
     out = tmp_path / "masks"
-    proc = run("render-masks", str(SAMPLE), "--config", str(CONFIG), "--track", str(track), "--frames", "0,2", "--out", str(out))
+    proc = run(
+        "render-masks", str(SAMPLE), "--config", str(CONFIG), "--track", str(track), "--frames", "0,2",
+        "--out", str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((out / "masks.json").read_text())
     assert [f["frame"] for f in summary["frames"]] == [0, 2]
@@ -40,7 +45,9 @@ def test_render_masks_with_a_track(tmp_path):
             for suffix in ("image", "observed", "estimate", "truth", "overlay"):
                 img = cv2.imread(str(base.with_name(f"{base.name}_{suffix}.png")))
                 assert img is not None and img.shape[:2] == shape, (k, name, suffix)
-            observed, estimate, truth = (_mask(base.with_name(f"{base.name}_{s}.png")) for s in ("observed", "estimate", "truth"))
+            observed, estimate, truth = (
+                _mask(base.with_name(f"{base.name}_{s}.png")) for s in ("observed", "estimate", "truth")
+            )
             for key, rendered in (("iou_estimate", estimate), ("iou_truth", truth)):
                 expected = (observed & rendered).sum() / max(1, (observed | rendered).sum())
                 assert abs(fr["sensors"][name][key] - expected) < 1e-9

@@ -59,7 +59,9 @@ def test_lateral_displacement_ignores_the_insertion_axis():
     assert float(M.lateral_displacement(across, T_gt, CUBE)) == pytest.approx(5e-4, abs=1e-15)
     # The axis is the truth's: tilt the truth and the same world offset is lateral.
     tilted = rot("x", 90.0, (0.1, 0.2, 0.3))
-    assert float(M.lateral_displacement(tilted @ se3.make_pose(np.eye(3), (0, 0, 0.002)), tilted, CUBE)) == pytest.approx(0, abs=1e-15)
+    assert float(
+        M.lateral_displacement(tilted @ se3.make_pose(np.eye(3), (0, 0, 0.002)), tilted, CUBE)
+    ) == pytest.approx(0, abs=1e-15)
     # A yaw of theta moves a corner at radius r by the chord 2 r sin(theta / 2).
     r = 0.0125 * math.sqrt(2)
     assert float(M.lateral_displacement(T_gt @ rot("z", 2.0), T_gt, CUBE)) == pytest.approx(
@@ -93,7 +95,9 @@ def test_mssd_of_a_known_rotation_of_a_box():
     T_gt = random_poses(np.random.default_rng(7), 1)[0]
     # 30 deg about x: a corner at distance rho from the axis moves 2 rho sin(15 deg).
     rho = math.hypot(0.005, 0.02)
-    assert float(M.mssd(T_gt @ rot("x", 30.0), T_gt, box)) == pytest.approx(2 * rho * math.sin(math.radians(15)), rel=1e-12)
+    assert float(M.mssd(T_gt @ rot("x", 30.0), T_gt, box)) == pytest.approx(
+        2 * rho * math.sin(math.radians(15)), rel=1e-12
+    )
     # The box's symmetries (180 deg about each axis): a half turn about z costs nothing...
     syms = np.stack([rot(a, 180.0) for a in "xyz"])
     assert float(M.mssd(T_gt @ rot("z", 180.0), T_gt, box, syms)) == pytest.approx(0.0, abs=1e-12)

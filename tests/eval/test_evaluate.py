@@ -90,8 +90,10 @@ def test_known_lateral_offset_gives_that_error_and_nees(tmp_path, conn1):
 
 def test_offsets_beyond_clearance_and_along_the_axis(tmp_path, conn1):
     stamps, T_gt, T_ee, log = conn1
-    far = evaluate(write_track(tmp_path / "a", "conn1", stamps, world_offset(T_gt, 4e-4 * lateral_unit(T_gt[-1])), T_ee),
-                   log, None, tmp_path / "ra")
+    far = evaluate(
+        write_track(tmp_path / "a", "conn1", stamps, world_offset(T_gt, 4e-4 * lateral_unit(T_gt[-1])), T_ee),
+        log, None, tmp_path / "ra",
+    )
     assert far["final"]["insertion_error_mm"] == pytest.approx(0.4, abs=1e-6)
     assert far["final"]["insertable"] is False
     # 1 mm along the insertion axis: a large error, but no lateral misalignment.
@@ -174,7 +176,8 @@ def test_sample_log_ground_truth_with_a_known_offset(tmp_path):
         msgs = [m for m in reader.messages(GT_TOPIC)]
     stamps = np.array([m.log_time_ns for m in msgs], dtype=np.int64)
     T_gt = np.stack([se3.from_quat_xyzw(
-        np.array([m.msg.pose.orientation.x, m.msg.pose.orientation.y, m.msg.pose.orientation.z, m.msg.pose.orientation.w]),
+        np.array([m.msg.pose.orientation.x, m.msg.pose.orientation.y, m.msg.pose.orientation.z,
+                  m.msg.pose.orientation.w]),
         np.array([m.msg.pose.position.x, m.msg.pose.position.y, m.msg.pose.position.z])) for m in msgs])
     T_ee = T_gt @ se3.invert(load_config(REPO / "configs" / "conn1.yaml").grasp_prior.pose.matrix())
     report = evaluate(write_track(tmp_path / "track", "conn1", stamps, world_offset(T_gt, [0, 3e-4, 0]), T_ee),
@@ -190,7 +193,9 @@ def test_ground_truth_is_interpolated_between_messages(tmp_path):
     n = 6
     stamps = 1_700_000_000_000_000_000 + STEP_NS * np.arange(n, dtype=np.int64)
     R = Rotation.from_euler("xyz", [170, 5, 30], degrees=True).as_matrix()
-    T_gt = se3.make_pose(np.broadcast_to(R, (n, 3, 3)), np.c_[0.001 * np.arange(n), np.zeros(n), 0.05 - 0.002 * np.arange(n)])
+    T_gt = se3.make_pose(
+        np.broadcast_to(R, (n, 3, 3)), np.c_[0.001 * np.arange(n), np.zeros(n), 0.05 - 0.002 * np.arange(n)]
+    )
     log = write_gt_log(tmp_path / "gt.mcap", stamps, T_gt)
     mid = stamps[:-1] + STEP_NS // 2
     T_mid = (T_gt[:-1] + T_gt[1:]) / 2  # same rotation, mean translation
@@ -323,7 +328,9 @@ def test_malformed_track_folder_raises_track_error(tmp_path, conn1, how, message
 
 
 def test_missing_track_folder(tmp_path, conn1):
-    with pytest.raises(TrackError, match=r"nope: track folder not found \(expected the output folder of mvtop estimate\)"):
+    with pytest.raises(
+        TrackError, match=r"nope: track folder not found \(expected the output folder of mvtop estimate\)"
+    ):
         evaluate(tmp_path / "nope", conn1[3], None, tmp_path / "report")
 
 
@@ -347,7 +354,8 @@ def test_log_without_ground_truth_names_the_topic_and_the_way_out(tmp_path, conn
         ({"translation_m": [0, 0, 0]}, r"quaternion_xyzw: expected a list of 4 numbers, got None"),
         ({"translation_m": [0, 0], "quaternion_xyzw": [0, 0, 0, 1]}, r"translation_m: expected a list of 3 numbers"),
         ({"translation_m": [0, 0, 0], "quaternion_xyzw": [0, 0, 0, 2]}, r"expected a unit quaternion, got norm 2"),
-        ({"translation": [0, 0, 0], "quaternion_xyzw": [0, 0, 0, 1]}, r"translation: unknown key \(did you mean 'translation_m'\?\)"),
+        ({"translation": [0, 0, 0], "quaternion_xyzw": [0, 0, 0, 1]},
+         r"translation: unknown key \(did you mean 'translation_m'\?\)"),
     ],
 )
 def test_bad_ground_truth_file(tmp_path, content, message):

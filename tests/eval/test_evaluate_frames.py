@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _eval_tracks import GT_TOPIC, REPO, write_track
 
 from mvtop_cli.config import load_config
 from mvtop_cli.errors import LogError
@@ -19,8 +20,6 @@ from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.io.mcap_writer import LogWriter
 from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
 from mvtop_cli.pipelines.evaluate import evaluate, object_model
-
-from _eval_tracks import GT_TOPIC, REPO, write_track
 
 SAMPLE = REPO / "sample_logs" / "cube.mcap"
 CFG = load_config(REPO / "configs" / "cube.yaml")

@@ -90,7 +90,9 @@ def test_ess_collapse_is_redone_with_more_tempering_and_recovers():
     """One tempering stage on a likelihood far sharper than the prior puts all the weight on
     a particle or two; the retry's smaller stages and Metropolis moves restore the set."""
     truth_rng = np.random.default_rng(3)
-    T_true = perturb_about_origin(T_NOMINAL, truth_rng.uniform(-1e-3, 1e-3, 3), truth_rng.uniform(-1, 1, 3) * np.deg2rad(3))
+    T_true = perturb_about_origin(
+        T_NOMINAL, truth_rng.uniform(-1e-3, 1e-3, 3), truth_rng.uniform(-1, 1, 3) * np.deg2rad(3)
+    )
     sharp = _peak(T_true, tau=2e-4)
 
     def run(retry):
@@ -203,7 +205,9 @@ def test_no_majority_no_down_weighting():
     # two informative sensors that disagree: nobody to side with
     watch = SensorConsistency()
     for _ in range(20):
-        assert watch.observe({"front": 0.2, "side": 0.95, "left": 1.0}, {"front": True, "side": True, "left": False}) == []
+        assert watch.observe(
+            {"front": 0.2, "side": 0.95, "left": 1.0}, {"front": True, "side": True, "left": False}
+        ) == []
     # half the sensors disagreeing: at most half are ever scaled down
     watch = SensorConsistency()
     scaled = []

@@ -133,7 +133,9 @@ def test_optional_topics_absent_give_none(scene_log):
 def test_sensor_frame_not_in_tf_names_the_frame(scene_log):
     bad = SensorTopics("front", "camera", "/cameras/front/image", "/cameras/front/camera_info", frame_id="front_camera")
     with McapLog(scene_log) as log:
-        with pytest.raises(LogError, match=r"scene\.mcap: frame 'front_camera' is not in the TF tree \(known frames: .*ee"):
+        with pytest.raises(
+            LogError, match=r"scene\.mcap: frame 'front_camera' is not in the TF tree \(known frames: .*ee"
+        ):
             list(FrameReader(log, [bad], TOPICS))
 
 
@@ -147,7 +149,9 @@ def test_ee_frame_not_in_tf_fails_before_any_frame(scene_log):
 def test_missing_image_topic_names_topic_and_expected_type(scene_log):
     with McapLog(scene_log) as log:
         with pytest.raises(
-            LogError, match=r"scene\.mcap: topic '/cameras/top/image' not found \(expected sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage for camera 'top'\)"
+            LogError,
+            match=r"scene\.mcap: topic '/cameras/top/image' not found "
+            r"\(expected sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage for camera 'top'\)",
         ):
             FrameReader(log, [SensorTopics.default("top")], TOPICS)
 
@@ -155,7 +159,9 @@ def test_missing_image_topic_names_topic_and_expected_type(scene_log):
 def test_wrong_topic_type_is_reported(scene_log):
     wrong = SensorTopics("front", "camera", "/contact", "/cameras/front/camera_info")
     with McapLog(scene_log) as log:
-        with pytest.raises(LogError, match=r"topic '/contact' has type 'std_msgs/msg/Bool' \(expected sensor_msgs/msg/Image"):
+        with pytest.raises(
+            LogError, match=r"topic '/contact' has type 'std_msgs/msg/Bool' \(expected sensor_msgs/msg/Image"
+        ):
             FrameReader(log, [wrong], TOPICS)
 
 
@@ -196,7 +202,9 @@ def test_contact_from_wrench_with_hysteresis(tmp_path):
             w.write_tf([("world", "ee", np.eye(4))], t)
             w.write_wrench("/wrench", [0.0, f * 0.6, f * 0.8], [0.0, 0.0, 0.0], t, "ee")
             w.write_camera_info("/cameras/front/camera_info", CAMERA, t, "front_optical")
-            w.write_image("/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical")
+            w.write_image(
+                "/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical"
+            )
     topics = LogTopics(contact=None, joint_states=None, ground_truth=None, wrench="/wrench")
     frames = list(iter_frames(path, SENSORS[:1], topics))
     assert [f.contact for f in frames] == expected
@@ -210,7 +218,8 @@ URDF = """<robot name="test_arm">
 <joint name="lift" type="prismatic"><parent link="base"/><child link="slider"/>
   <origin xyz="0 0 0.5" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
 <joint name="wrist" type="revolute"><parent link="slider"/><child link="ee"/>
-  <origin xyz="0.1 0 0" rpy="3.14159265358979 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+  <origin xyz="0.1 0 0" rpy="3.14159265358979 0 0"/><axis xyz="0 0 1"/>\
+<limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
 </robot>"""
 
 
@@ -243,7 +252,9 @@ def test_end_effector_from_joint_states_and_urdf(tmp_path):
         for k in range(4):  # images at 15 ms offsets: between joint samples
             t = T0 + 15 * MS + k * 50 * MS
             w.write_camera_info("/cameras/front/camera_info", CAMERA, t, "front_optical")
-            w.write_image("/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical")
+            w.write_image(
+                "/cameras/front/image", np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8), t, "front_optical"
+            )
     topics = LogTopics(tf="/tf", contact=None, ground_truth=None, urdf=str(urdf))
     frames = list(iter_frames(path, SENSORS[:1], topics))
     assert len(frames) == 4

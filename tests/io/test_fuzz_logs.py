@@ -75,7 +75,9 @@ def test_the_harness_reports_failures(env, tmp_path):
     log = tmp_path / "x.mcap"
     ok = {"code": 0, "stdout": "", "stderr": "", "traceback": None}
     assert fuzz.classify("inspect", ok, log, None)[0] == "ok"
-    assert fuzz.classify("inspect", {**ok, "code": None, "traceback": "Traceback ...\nValueError: x"}, log, None)[0] == "crash"
+    assert fuzz.classify(
+        "inspect", {**ok, "code": None, "traceback": "Traceback ...\nValueError: x"}, log, None
+    )[0] == "crash"
     err = {**ok, "code": 2, "stderr": f"mvtop: error: {log}: corrupt chunk\n"}
     assert fuzz.classify("inspect", err, log, None) == ("error", f"mvtop: error: {log}: corrupt chunk")
     assert fuzz.classify("inspect", {**err, "stderr": "libpng error: x\n" + err["stderr"]}, log, None)[0] == "unclear"

@@ -96,7 +96,8 @@ def test_unknown_encoding_names_topic_and_lists_supported():
     m = msg(height=1, width=1, encoding="yuv422", is_bigendian=0, step=2, data=b"\0\0")
     with pytest.raises(
         LogError,
-        match=r"topic '/cameras/front/image': unsupported colour image encoding 'yuv422' \(supported: rgb8, bgr8, rgba8, bgra8, mono8",
+        match=r"topic '/cameras/front/image': unsupported colour image encoding 'yuv422' "
+        r"\(supported: rgb8, bgr8, rgba8, bgra8, mono8",
     ):
         decode_image(m, "/cameras/front/image")
     with pytest.raises(LogError, match=r"unsupported depth image encoding 'rgb8' \(supported: 32FC1, 16UC1\)"):
@@ -107,7 +108,8 @@ def test_size_mismatch_is_reported():
     m = msg(height=4, width=5, encoding="rgb8", is_bigendian=0, step=15, data=bytes(59))
     with pytest.raises(
         LogError,
-        match=r"topic '/img': rgb8 image of 5x4 has step 15 and 59 data bytes \(expected step >= 15 and step\*height = 60 bytes\)",
+        match=r"topic '/img': rgb8 image of 5x4 has step 15 and 59 data bytes "
+        r"\(expected step >= 15 and step\*height = 60 bytes\)",
     ):
         decode_image(m, "/img")
     m = msg(height=2, width=5, encoding="rgb8", is_bigendian=0, step=10, data=bytes(20))

@@ -101,7 +101,9 @@ def test_split_bag_reads_as_one_log_in_time_order():
     ref = 0
     for name in ("multiple_files_0.mcap", "multiple_files_1.mcap"):
         with open(MULTI / name, "rb") as fh:
-            ref += sum(1 for _ in make_reader(fh).iter_messages(starting_at=1616653335000000000, ending_at=1616653336000000000))
+            ref += sum(
+                1 for _ in make_reader(fh).iter_messages(starting_at=1616653335000000000, ending_at=1616653336000000000)
+            )
     assert len(window) == ref == 500
     rate = read_summary(MULTI).topic("/chatter").rate_hz
     assert rate == pytest.approx(500.0, rel=1e-3)
@@ -195,13 +197,16 @@ def test_not_an_mcap_file(tmp_path):
     path = tmp_path / "notes.mcap"
     path.write_text("hello world, this is text")
     with pytest.raises(
-        LogError, match=r"notes\.mcap: not an MCAP file \(starts with b'hello wo', expected the MCAP magic b'\\x89MCAP0\\r\\n'\)"
+        LogError,
+        match=r"notes\.mcap: not an MCAP file \(starts with b'hello wo', expected the MCAP magic b'\\x89MCAP0\\r\\n'\)",
     ):
         McapLog(path)
     (tmp_path / "empty.mcap").write_bytes(b"")
     with pytest.raises(LogError, match=r"empty\.mcap: not an MCAP file \(starts with b''"):
         McapLog(tmp_path / "empty.mcap")
-    with pytest.raises(LogError, match=r"missing\.mcap: no such file or folder \(expected an \.mcap file or a rosbag2 bag folder\)"):
+    with pytest.raises(
+        LogError, match=r"missing\.mcap: no such file or folder \(expected an \.mcap file or a rosbag2 bag folder\)"
+    ):
         McapLog(tmp_path / "missing.mcap")
     (tmp_path / "bag").mkdir()
     with pytest.raises(LogError, match=r"bag: folder holds no \.mcap files"):
@@ -285,18 +290,26 @@ def test_corrupt_chunk_raises_naming_file_and_offset(tmp_path, compression):
             list(log.messages())
     msg = str(info.value)
     assert msg.startswith(f"{path}: corrupt chunk at byte {ci.chunk_start_offset} (")
-    assert f"expected {compression if compression != 'none' else 'uncompressed'} data of {ci.uncompressed_size} bytes" in msg
+    assert (
+        f"expected {compression if compression != 'none' else 'uncompressed'} "
+        f"data of {ci.uncompressed_size} bytes" in msg
+    )
 
 
 def test_missing_topic_names_file_and_topics(small_log):
     with McapLog(small_log) as log:
-        with pytest.raises(LogError, match=r"small\.mcap: topic '/camera/image' not found \(topics: /cameras/front/camera_info, "):
+        with pytest.raises(
+            LogError, match=r"small\.mcap: topic '/camera/image' not found \(topics: /cameras/front/camera_info, "
+        ):
             log.messages(["/camera/image", "/tf"])
         with pytest.raises(
-            LogError, match=r"small\.mcap: topic '/wrist/image' not found \(expected sensor_msgs/msg/Image messages; topics: "
+            LogError,
+            match=r"small\.mcap: topic '/wrist/image' not found \(expected sensor_msgs/msg/Image messages; topics: ",
         ):
             log.require_topics({"/tf": rm.TF_MESSAGE, "/wrist/image": rm.IMAGE})
-        with pytest.raises(LogError, match=r"topic '/contact' has type 'std_msgs/msg/Bool' \(expected sensor_msgs/msg/Image\)"):
+        with pytest.raises(
+            LogError, match=r"topic '/contact' has type 'std_msgs/msg/Bool' \(expected sensor_msgs/msg/Image\)"
+        ):
             log.require_topics({"/contact": rm.IMAGE})
         log.require_topics({"/tf": "tf2_msgs/TFMessage", "/contact": None})  # short type names are fine
         with pytest.raises(LogError, match=r"topic '/nope' not found"):

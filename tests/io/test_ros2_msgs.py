@@ -43,12 +43,15 @@ def test_mcap_ros2_writer_encodes_every_type_and_decodes_it_back():
     quat = {"x": 0.0, "y": 0.0, "z": 0.6, "w": 0.8}
     pose = {"position": vec, "orientation": quat}
     samples = {
-        rm.TF_MESSAGE: {"transforms": [{"header": header, "child_frame_id": "ee", "transform": {"translation": vec, "rotation": quat}}]},
-        rm.IMAGE: {"header": header, "height": 1, "width": 2, "encoding": "rgb8", "is_bigendian": 0, "step": 6, "data": bytes(range(6))},
+        rm.TF_MESSAGE: {"transforms": [{"header": header, "child_frame_id": "ee",
+                                        "transform": {"translation": vec, "rotation": quat}}]},
+        rm.IMAGE: {"header": header, "height": 1, "width": 2, "encoding": "rgb8", "is_bigendian": 0, "step": 6,
+                   "data": bytes(range(6))},
         rm.COMPRESSED_IMAGE: {"header": header, "format": "png", "data": b"\x89PNG"},
         rm.CAMERA_INFO: {"header": header, "height": 4, "width": 5, "distortion_model": "plumb_bob", "d": [0.1] * 5,
                           "k": [float(i) for i in range(9)], "r": [0.0] * 9, "p": [0.0] * 12, "binning_x": 0,
-                          "binning_y": 0, "roi": {"x_offset": 1, "y_offset": 2, "height": 3, "width": 4, "do_rectify": True}},
+                          "binning_y": 0,
+                          "roi": {"x_offset": 1, "y_offset": 2, "height": 3, "width": 4, "do_rectify": True}},
         rm.JOINT_STATE: {"header": header, "name": ["finger_joint1"], "position": [0.01], "velocity": [], "effort": []},
         rm.BOOL: {"data": True},
         rm.WRENCH_STAMPED: {"header": header, "wrench": {"force": vec, "torque": vec}},

@@ -20,7 +20,9 @@ def line_motion(t_ns: int) -> np.ndarray:
     """ee moves along a known line at 0.1 m/s and turns about a fixed axis at 0.8 rad/s."""
     s = (t_ns - T0) / SEC
     axis = np.array([1.0, 2.0, 2.0]) / 3.0
-    return se3.make_pose(se3.rotvec_to_matrix(axis * 0.8 * s), np.array([0.4, -0.1, 0.3]) + s * np.array([0.1, 0.0, -0.05]))
+    return se3.make_pose(
+        se3.rotvec_to_matrix(axis * 0.8 * s), np.array([0.4, -0.1, 0.3]) + s * np.array([0.1, 0.0, -0.05])
+    )
 
 
 @pytest.fixture
@@ -79,11 +81,14 @@ def test_time_outside_data_fails_unless_within_tolerance(moving_ee):
 
 
 def test_unknown_and_disconnected_frames(moving_ee):
-    with pytest.raises(LogError, match=r"test\.mcap: frame 'gripper' is not in the TF tree \(known frames: cam_optical, ee, world\)"):
+    with pytest.raises(
+        LogError, match=r"test\.mcap: frame 'gripper' is not in the TF tree \(known frames: cam_optical, ee, world\)"
+    ):
         moving_ee.lookup("world", "gripper", T0)
     moving_ee.add_static("table", "receptacle", np.eye(4))
     with pytest.raises(
-        LogError, match=r"frames 'receptacle' and 'ee' are not connected in the TF tree \(their roots are 'table' and 'world'\)"
+        LogError,
+        match=r"frames 'receptacle' and 'ee' are not connected in the TF tree \(their roots are 'table' and 'world'\)",
     ):
         moving_ee.lookup("receptacle", "ee", T0)
 
@@ -107,7 +112,9 @@ def test_multi_link_chain_from_a_written_log(tmp_path):
     with McapLog(path) as log:
         for m in log.messages(["/tf_static", "/tf"]):
             buf.add_tf_message(m.msg, static=m.topic == "/tf_static")
-    assert buf.frames == {"world", "base", "link", "ee", "tactile_left_optical", "tactile_right_optical", "front_optical", "side_optical"}
+    assert buf.frames == {
+        "world", "base", "link", "ee", "tactile_left_optical", "tactile_right_optical", "front_optical", "side_optical"
+    }
     assert buf.parent("ee") == "link" and buf.is_static("ee", "tactile_left_optical")
     rng = np.random.default_rng(7)
     for t in [T0, T0 + SEC, *map(int, rng.integers(T0, T0 + SEC, 20))]:

@@ -76,7 +76,9 @@ _MID_R = (127.5 - 123.675) / 58.395
 _MID_G = (127.5 - 116.28) / 57.12
 
 
-def sam_encoder(path: Path, input_size: int = 1024, embed_side: int = 64, channels: int = 256, input_name: str = "image") -> Path:
+def sam_encoder(
+    path: Path, input_size: int = 1024, embed_side: int = 64, channels: int = 256, input_name: str = "image"
+) -> Path:
     g = _Graph()
     S, E = input_size, embed_side
     img = input_name
@@ -117,7 +119,10 @@ def sam_decoder(
     rename: dict[str, str] | None = None,
 ) -> Path:
     rename = rename or {}
-    n = {k: rename.get(k, k) for k in ("image_embeddings", "point_coords", "point_labels", "mask_input", "has_mask_input", "orig_im_size")}
+    n = {
+        k: rename.get(k, k)
+        for k in ("image_embeddings", "point_coords", "point_labels", "mask_input", "has_mask_input", "orig_im_size")
+    }
     g = _Graph()
     S, E, M = float(input_size), embed_side, 4 * embed_side
     size = n["orig_im_size"]
@@ -131,11 +136,14 @@ def sam_decoder(
     sr = g.op("Sqrt", g.op("Mul", sx, sy))
     # Points -> original pixels, (1, N) each.
     coords = n["point_coords"]
-    px = g.op("Mul", g.op("Squeeze", g.op("Slice", coords, g.const([0], np.int64), g.const([1], np.int64), g.const([2], np.int64)), g.const([2], np.int64)), sx)
-    py = g.op("Mul", g.op("Squeeze", g.op("Slice", coords, g.const([1], np.int64), g.const([2], np.int64), g.const([2], np.int64)), g.const([2], np.int64)), sy)
+    px = g.op("Mul", g.op("Squeeze", g.op("Slice", coords, g.const([0], np.int64), g.const([1], np.int64),
+                                          g.const([2], np.int64)), g.const([2], np.int64)), sx)
+    py = g.op("Mul", g.op("Squeeze", g.op("Slice", coords, g.const([1], np.int64), g.const([2], np.int64),
+                                          g.const([2], np.int64)), g.const([2], np.int64)), sy)
     fg = g.op("Equal", n["point_labels"], g.const(1.0))  # (1, N)
     # Object parameters from the embedding.
-    par = g.op("Slice", n["image_embeddings"], g.const([0, 0, 0], np.int64), g.const([6, 1, 1], np.int64), g.const([1, 2, 3], np.int64))
+    par = g.op("Slice", n["image_embeddings"], g.const([0, 0, 0], np.int64), g.const([6, 1, 1], np.int64),
+               g.const([1, 2, 3], np.int64))
     par = g.op("Reshape", par, g.const([6], np.int64))
     P = [g.op("Gather", par, g.const(i, np.int64), axis=0) for i in range(6)]  # scalars
     # Pixel grid (1, 1, H, W).
@@ -144,7 +152,8 @@ def sam_decoder(
     scale = g.const(logit_scale)
 
     def disc_logits(cx, cy, r):
-        d = g.op("Sqrt", g.op("Add", g.op("Pow", g.op("Sub", u, cx), g.const(2.0)), g.op("Pow", g.op("Sub", v, cy), g.const(2.0))))
+        d = g.op("Sqrt", g.op("Add", g.op("Pow", g.op("Sub", u, cx), g.const(2.0)),
+                              g.op("Pow", g.op("Sub", v, cy), g.const(2.0))))
         return g.op("Mul", scale, g.op("Sub", r, d))
 
     hits, objects = [], []
@@ -160,8 +169,10 @@ def sam_decoder(
     both = g.op("Max", *objects)
     # The first foreground point, as (1,1,1,1) x and y.
     first = g.op("ArgMax", g.op("Cast", fg, to=FLOAT), axis=1, keepdims=0)  # (1,)
-    fx = g.op("Reshape", g.op("Gather", g.op("Reshape", px, g.const([-1], np.int64)), first, axis=0), g.const([1, 1, 1, 1], np.int64))
-    fy = g.op("Reshape", g.op("Gather", g.op("Reshape", py, g.const([-1], np.int64)), first, axis=0), g.const([1, 1, 1, 1], np.int64))
+    fx = g.op("Reshape", g.op("Gather", g.op("Reshape", px, g.const([-1], np.int64)), first, axis=0),
+              g.const([1, 1, 1, 1], np.int64))
+    fy = g.op("Reshape", g.op("Gather", g.op("Reshape", py, g.const([-1], np.int64)), first, axis=0),
+              g.const([1, 1, 1, 1], np.int64))
     miss = disc_logits(fx, fy, g.const(miss_radius))
     main = g.op("Where", any_hit, both, miss)
     iou = g.op("Where", any_hit, g.const([[0.95]]), g.const([[0.2]]))  # (1, 1)
@@ -207,7 +218,8 @@ def instance_model(path: Path, fixed_hw: tuple[int, int] | None = None) -> Path:
     zero, one = g.const(0.0), g.const(1.0)
     a = g.op("Clip", g.op("Sub", red, green), zero, one)
     b = g.op("Clip", g.op("Sub", green, red), zero, one)
-    g.op("Concat", g.op("Unsqueeze", a, g.const([0], np.int64)), g.op("Unsqueeze", b, g.const([0], np.int64)), axis=0, out="masks")
+    g.op("Concat", g.op("Unsqueeze", a, g.const([0], np.int64)), g.op("Unsqueeze", b, g.const([0], np.int64)),
+         axis=0, out="masks")
     g.op("Identity", g.const([[10, 10, 50, 50], [60, 60, 90, 90]]), out="boxes")
     g.op("Identity", g.const([1, 2], np.int64), out="labels")
     g.op("Identity", g.const([0.9, 0.6]), out="scores")

@@ -19,7 +19,8 @@ def models(tmp_path_factory):
         "fixed": onnx_models.instance_model(d / "fixed.onnx", fixed_hw=(320, 320)),
         "fixed_wide": onnx_models.instance_model(d / "fixed_wide.onnx", fixed_hw=(256, 384)),
         "boxes": onnx_models.box_mask_model(
-            d / "boxes.onnx", (320, 320), boxes=[[10, 20, 110, 70], [200, 100, 260, 180]], labels=[1, 1], scores=[0.7, 0.95]
+            d / "boxes.onnx", (320, 320), boxes=[[10, 20, 110, 70], [200, 100, 260, 180]], labels=[1, 1],
+            scores=[0.7, 0.95],
         ),
     }
 
@@ -147,12 +148,23 @@ def test_bad_models(tmp_path):
     with pytest.raises(ModelError, match=r"junk.onnx: cannot load instance segmentation model as an ONNX model"):
         InstanceOnnxBackend(model_path=junk)
     hwc = onnx_models.signature_model(
-        tmp_path / "hwc.onnx", {"image": ["H", "W", 3]}, {"boxes": ["N", 4], "labels": ["N"], "scores": ["N"], "masks": ["N", 1, "h", "w"]}
+        tmp_path / "hwc.onnx", {"image": ["H", "W", 3]},
+        {"boxes": ["N", 4], "labels": ["N"], "scores": ["N"], "masks": ["N", 1, "h", "w"]},
     )
-    with pytest.raises(ModelError, match=r"hwc.onnx: instance segmentation model: expected input image\[3,H,W\] or image\[1,3,H,W\] float32; got image\[\?,\?,3\]"):
+    with pytest.raises(
+        ModelError,
+        match=r"hwc.onnx: instance segmentation model: expected input image\[3,H,W\] or image\[1,3,H,W\] float32; "
+        r"got image\[\?,\?,3\]",
+    ):
         InstanceOnnxBackend(model_path=hwc)
-    no_masks = onnx_models.signature_model(tmp_path / "det.onnx", {"image": [3, "H", "W"]}, {"boxes": ["N", 4], "scores": ["N"]})
-    with pytest.raises(ModelError, match=r"det.onnx: instance segmentation model: expected outputs boxes, labels, scores, masks; got boxes\[.,4\], scores\[.\]$"):
+    no_masks = onnx_models.signature_model(
+        tmp_path / "det.onnx", {"image": [3, "H", "W"]}, {"boxes": ["N", 4], "scores": ["N"]}
+    )
+    with pytest.raises(
+        ModelError,
+        match=r"det.onnx: instance segmentation model: expected outputs boxes, labels, scores, masks; "
+        r"got boxes\[.,4\], scores\[.\]$",
+    ):
         InstanceOnnxBackend(model_path=no_masks)
 
 
@@ -163,5 +175,7 @@ def test_options():
         InstanceOnnxOptions.from_mapping({})
     with pytest.raises(ConfigError, match=r"score_threshold=1.5"):
         InstanceOnnxOptions.from_mapping({"model_path": "m.onnx", "score_threshold": 1.5})
-    o = InstanceOnnxOptions.from_mapping({"model_path": "m.onnx", "class_id": None, "providers": ["CPUExecutionProvider"]})
+    o = InstanceOnnxOptions.from_mapping(
+        {"model_path": "m.onnx", "class_id": None, "providers": ["CPUExecutionProvider"]}
+    )
     assert o.class_id is None and o.providers == ("CPUExecutionProvider",)

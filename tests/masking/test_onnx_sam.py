@@ -94,7 +94,9 @@ def test_preprocess_resizes_long_side_normalises_and_pads(models):
     x, frame = b.preprocess(img)
     assert x.shape == (1, 3, 1024, 1024) and x.dtype == np.float32
     assert (frame.resized_h, frame.resized_w) == (512, 1024)
-    np.testing.assert_allclose(x[0, :, :512, :].mean(axis=(1, 2)), [(255 - 123.675) / 58.395, -116.28 / 57.12, -103.53 / 57.375], rtol=1e-5)
+    np.testing.assert_allclose(
+        x[0, :, :512, :].mean(axis=(1, 2)), [(255 - 123.675) / 58.395, -116.28 / 57.12, -103.53 / 57.375], rtol=1e-5
+    )
     assert np.all(x[0, :, 512:, :] == 0)
 
 
@@ -220,7 +222,9 @@ def test_decoder_with_wrong_input_names(models, tmp_path):
     with pytest.raises(ModelError) as err:
         SamOnnxBackend(encoder_path=models["encoder"], decoder_path=bad)
     msg = str(err.value)
-    assert msg.startswith(f"{bad}: SAM mask decoder: expected inputs image_embeddings, point_coords, point_labels, mask_input")
+    assert msg.startswith(
+        f"{bad}: SAM mask decoder: expected inputs image_embeddings, point_coords, point_labels, mask_input"
+    )
     assert "got " in msg and "coords[1,?,2]" in msg and "\n" not in msg
 
 
@@ -230,18 +234,29 @@ def test_decoder_without_iou_output(models, tmp_path):
         "mask_input": [1, 1, 256, 256], "has_mask_input": [1], "orig_im_size": [2],
     }
     bad = onnx_models.signature_model(tmp_path / "d.onnx", inputs, {"masks": [1, 1, "h", "w"]})
-    with pytest.raises(ModelError, match=r"d.onnx: SAM mask decoder: expected outputs masks, iou_predictions; got masks"):
+    with pytest.raises(
+        ModelError, match=r"d.onnx: SAM mask decoder: expected outputs masks, iou_predictions; got masks"
+    ):
         SamOnnxBackend(encoder_path=models["encoder"], decoder_path=bad)
 
 
 def test_encoder_with_wrong_signature_or_embedding_shape(models, tmp_path):
-    two = onnx_models.signature_model(tmp_path / "e2.onnx", {"image": [1, 3, 1024, 1024], "x": [1]}, {"image_embeddings": [1, 256, 64, 64]})
+    two = onnx_models.signature_model(
+        tmp_path / "e2.onnx", {"image": [1, 3, 1024, 1024], "x": [1]}, {"image_embeddings": [1, 256, 64, 64]}
+    )
     with pytest.raises(ModelError, match=r"e2.onnx: SAM image encoder: expected one input image\[1,3,S,S\]; got 2"):
         SamOnnxBackend(encoder_path=two, decoder_path=models["decoder"])
-    hwc = onnx_models.signature_model(tmp_path / "e3.onnx", {"image": [1024, 1024, 3]}, {"image_embeddings": [1, 256, 64, 64]})
-    with pytest.raises(ModelError, match=r"e3.onnx: SAM image encoder: expected input image\[1,3,S,S\] float32; got image\[1024,1024,3\]"):
+    hwc = onnx_models.signature_model(
+        tmp_path / "e3.onnx", {"image": [1024, 1024, 3]}, {"image_embeddings": [1, 256, 64, 64]}
+    )
+    with pytest.raises(
+        ModelError,
+        match=r"e3.onnx: SAM image encoder: expected input image\[1,3,S,S\] float32; got image\[1024,1024,3\]",
+    ):
         SamOnnxBackend(encoder_path=hwc, decoder_path=models["decoder"])
-    with pytest.raises(ModelError, match=r"decoder_512.onnx: SAM mask decoder: input image_embeddings\[1,256,32,32\] does not match"):
+    with pytest.raises(
+        ModelError, match=r"decoder_512.onnx: SAM mask decoder: input image_embeddings\[1,256,32,32\] does not match"
+    ):
         SamOnnxBackend(encoder_path=models["encoder"], decoder_path=models["decoder_512"])
 
 
@@ -254,7 +269,9 @@ def test_options_reject_unknown_and_bad_values(models):
         SamOnnxOptions.from_mapping({"encoder_path": "e", "decoder_path": "d", "points_per_side": 0})
     with pytest.raises(ConfigError, match=r"option 'crop_to_roi' = 'yes' is not a bool"):
         SamOnnxOptions.from_mapping({"encoder_path": "e", "decoder_path": "d", "crop_to_roi": "yes"})
-    o = SamOnnxOptions.from_mapping({"encoder_path": "e", "decoder_path": "d", "pixel_mean": [0, 0, 0], "input_size": 512})
+    o = SamOnnxOptions.from_mapping(
+        {"encoder_path": "e", "decoder_path": "d", "pixel_mean": [0, 0, 0], "input_size": 512}
+    )
     assert o.pixel_mean == (0.0, 0.0, 0.0) and o.input_size == 512 and o.encoder_path.name == "e"
 
 

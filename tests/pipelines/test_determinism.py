@@ -24,7 +24,9 @@ def _mvtop(*args, env: dict | None = None) -> None:
 
 
 def _subprocess_run(out: Path, threads: int) -> str:
-    _mvtop("estimate", LOG, "--config", CONFIG, "--out", out, *ARGS, env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
+    _mvtop(
+        "estimate", LOG, "--config", CONFIG, "--out", out, *ARGS, env={**os.environ, "NUMBA_NUM_THREADS": str(threads)}
+    )
     return (out / "track.csv").read_text()
 
 

@@ -131,7 +131,9 @@ def test_nan_likelihood_frames_are_skipped_without_nan(capsys, tmp_path, monkeyp
     assert all(w["invalid"] == w["evaluated"] > 0 for w in degenerate)
     assert summary["warning_counts"]["degenerate_weights"] == 2
     lines = [l for l in _warning_lines(err) if "degenerate_weights" in l]
-    assert lines == [l for l in lines if "in 2 of 5 frames (2, 3)" in l and "the update was skipped" in l] and len(lines) == 1
+    assert lines == [
+        l for l in lines if "in 2 of 5 frames (2, 3)" in l and "the update was skipped" in l
+    ] and len(lines) == 1
     text = (out / "track.csv").read_text()
     assert "nan" not in text.lower() and "inf" not in text.lower()
     rows = list(csv.DictReader(text.splitlines()))

@@ -46,7 +46,9 @@ def test_frames_with_a_missing_sensor_still_update(tmp_path):
     src = ROOT / "sample_logs" / "conn2.mcap"
     gappy = tmp_path / "gappy.mcap"
     t0 = 1_700_000_000_000_000_000
-    drop = {("/cameras/side/image/compressed", k) for k in (1, 2, 3)} | {("/tactile/left/depth", 4), ("/tactile/left/image/compressed", 4)}
+    drop = {("/cameras/side/image/compressed", k) for k in (1, 2, 3)} | {
+        ("/tactile/left/depth", 4), ("/tactile/left/image/compressed", 4)
+    }
     with McapLog(src) as log, LogWriter(gappy) as w:
         for m in log.messages(decode=False):
             k = round((m.log_time_ns - t0) / 1e8)

@@ -41,7 +41,9 @@ VARIANTS = {
     # only must not pull it (they did, 1.75 deg at 30 frames, while they were scored as a
     # whole frame of evidence)
     "rates_drops_jitter_plug": ("plug", dict(timing=TIMING)),
-    "all_combined": ("conn2", dict(image_format="raw", distortion=DISTORTION, kinematics="joint-states", timing=TIMING)),
+    "all_combined": (
+        "conn2", dict(image_format="raw", distortion=DISTORTION, kinematics="joint-states", timing=TIMING)
+    ),
 }
 IMAGE_TOPICS = ("/cameras/front/image", "/cameras/side/image", "/tactile/left/image", "/tactile/right/image")
 @dataclass

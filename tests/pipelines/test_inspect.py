@@ -92,7 +92,9 @@ def test_without_requirements_tf_is_not_scanned(log_path):
 
 def test_real_bag_with_empty_channels():
     folder = REAL / "rosbag2_py_test_resources_mcap_talker"
-    report = inspect_log(folder, {"/parameter_events": "rcl_interfaces/msg/ParameterEvent", "/topic": "std_msgs/String"})
+    report = inspect_log(
+        folder, {"/parameter_events": "rcl_interfaces/msg/ParameterEvent", "/topic": "std_msgs/String"}
+    )
     assert report.empty_topics == ("/parameter_events",) and not report.missing_topics and not report.wrong_types
     text = format_report(report)
     assert "files:       1 (talker.mcap)" in text and "compression: zstd" in text

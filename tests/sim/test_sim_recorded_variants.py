@@ -114,7 +114,9 @@ def test_state_between_frames_is_the_interpolated_motion():
     assert state_at([a, b], -5) is a and state_at([a, b], 150) is b
     mid = state_at([a, b], 25)
     np.testing.assert_allclose(mid.T_world_ee, se3.interpolate(T0, T1, 0.25), atol=1e-15)
-    np.testing.assert_allclose(mid.T_world_object, se3.interpolate(a.T_world_object, b.T_world_object, 0.25), atol=1e-15)
+    np.testing.assert_allclose(
+        mid.T_world_object, se3.interpolate(a.T_world_object, b.T_world_object, 0.25), atol=1e-15
+    )
     assert mid.pad_left_y_m == pytest.approx(0.0105) and mid.pad_right_y_m == pytest.approx(-0.0105)
     assert (mid.contact, mid.press_force_n) == (False, 0.1)
 

@@ -59,14 +59,16 @@ def _magenta(rgb: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("name", list_objects())
 def test_camera_images_show_the_object_where_ground_truth_puts_it(tmp_path, name):
-    log, cfg_path = _simulate(tmp_path, name, object_rgb=MAGENTA, noise_std=0.0, image_format="png", tactile_format="png")
+    log, cfg_path = _simulate(
+        tmp_path, name, object_rgb=MAGENTA, noise_std=0.0, image_format="png", tactile_format="png"
+    )
     cfg, frames, tf = _frames(log, cfg_path)
     scene = SceneModel(cfg, build_contact=False)
     inter = union = 0
     for fr in frames:
         for cam, img in fr.cameras.items():
             T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
-            occ = scene.occluders(img.T_world_sensor, lambda f: tf.lookup("world", f, img.stamp_ns))
+            occ = scene.occluders(img.T_world_sensor, lambda f, img=img: tf.lookup("world", f, img.stamp_ns))
             rendered = scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, Roi.full(img.camera), occ)[0]
             seen = _magenta(img.image)
             i, u = (rendered & seen).sum(), (rendered | seen).sum()
@@ -173,7 +175,7 @@ def test_cameras_with_lens_distortion_are_undistorted_back_to_the_pinhole_images
     for fr in frames:
         for img in fr.cameras.values():
             T = se3.invert(img.T_world_sensor) @ fr.T_world_object_gt
-            occ = scene.occluders(img.T_world_sensor, lambda f: tf.lookup("world", f, img.stamp_ns))
+            occ = scene.occluders(img.T_world_sensor, lambda f, img=img: tf.lookup("world", f, img.stamp_ns))
             rendered = scene.renderer.render_masks(OBJECT_ID, T[None], img.camera, Roi.full(img.camera), occ)[0]
             seen = _magenta(img.image)
             inter, union = inter + (rendered & seen).sum(), union + (rendered | seen).sum()

@@ -52,10 +52,13 @@ def require():
     except (ImportError, OSError) as err:
         if "libusb" in str(err):  # open3d, imported by chsel's helpers, without its system library
             raise BaselineUnavailable(
-                "the CHSEL baseline cannot load libusb-1.0 for open3d; on Debian/Ubuntu: apt-get install -y libusb-1.0-0"
+                "the CHSEL baseline cannot load libusb-1.0 for open3d; "
+                "on Debian/Ubuntu: apt-get install -y libusb-1.0-0"
             ) from None
         what = getattr(err, "name", None) or str(err).splitlines()[0]
-        raise BaselineUnavailable(f"the CHSEL baseline needs torch and chsel ({what} is missing): {INSTALL_HINT}") from None
+        raise BaselineUnavailable(
+            f"the CHSEL baseline needs torch and chsel ({what} is missing): {INSTALL_HINT}"
+        ) from None
     import chsel
     import pytorch_volumetric as pv
     import torch
@@ -216,4 +219,6 @@ def register(
     T = se3.invert(H)
     best = int(np.argmin(costs))
     near = costs <= costs[best] * COST_RATIO + 1e-12
-    return Registration(T[best], costs, T, _spread(T[best], T[near]), time.perf_counter() - t0, time.process_time() - c0)
+    return Registration(
+        T[best], costs, T, _spread(T[best], T[near]), time.perf_counter() - t0, time.process_time() - c0
+    )

@@ -32,7 +32,6 @@ from ...pipelines.estimate import log_topics, sensor_topics
 from ...records import Frame
 from .points import LabelledPoints, camera_free_points, environment_free_points, tactile_points
 
-
 _REGION_MARGIN_M = 1e-3  # added to the radius of the region the object can occupy
 
 
@@ -150,11 +149,14 @@ class FramePoints:
         o = self.options
         return camera_free_points(
             mask, roi.camera(img.camera), centre, self.radius, occluder_depth_m=depth, spacing_m=o.ray_spacing_m,
-            stride_px=max(1, round(o.stride_px / k)), mask_margin_px=max(1 if o.mask_margin_px else 0, round(o.mask_margin_px / k)),
+            stride_px=max(1, round(o.stride_px / k)),
+            mask_margin_px=max(1 if o.mask_margin_px else 0, round(o.mask_margin_px / k)),
         )
 
 
-def log_points(log_path: Path, cfg: Config, options: PointOptions = PointOptions(), max_frames: int | None = None) -> LogPoints:
+def log_points(
+    log_path: Path, cfg: Config, options: PointOptions = PointOptions(), max_frames: int | None = None
+) -> LogPoints:
     """Points of the frames of ``log_path`` (the last ``options.last_frames`` of the first
     ``max_frames``), pooled in the ee frame and thinned to ``options.voxel_m``."""
     scene = SceneModel(cfg, build_contact=True)
