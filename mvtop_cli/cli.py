@@ -621,8 +621,12 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
+@click.option("--ray", "ray_address", metavar="ADDRESS",
+              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
+                   "writes into --out, which must be on a file system they share.")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, methods: str, frames: int,
-                           particles: int | None, workers: int, import_results: Path | None, summary_only: bool) -> None:
+                           particles: int | None, workers: int, import_results: Path | None, summary_only: bool,
+                           ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
@@ -639,7 +643,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, poses: int, metho
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
-                              import_results=import_results, summary_only=summary_only)
+                              import_results=import_results, summary_only=summary_only, ray=ray_address)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))

@@ -146,6 +146,7 @@ class RayEngine:
         self.num_cpus = num_cpus
         self.cpus_per_job = cpus_per_job
         self.max_retries = max_retries
+        self.threads = cpus_per_job
         self._started = False
 
     def describe(self) -> str:
