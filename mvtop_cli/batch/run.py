@@ -45,9 +45,8 @@ RECORDS_DIR = ".mvtop-batch"
 TABLE_FILE = "runs.csv"
 TABLE_COLUMNS = (
     "name", "status", "frames", "frames_skipped", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
-    "spread_translation_mm", "spread_rotation_deg", "warnings", "warning_kinds", "run_time_s", "job_time_s",
-    "gt_translation_error_mm", "gt_rotation_error_deg", "resumed_at_frame", "starts", "host", "log", "config",
-    "error",
+    "spread_translation_mm", "spread_rotation_deg", "warnings", "warning_kinds", "run_time_s", "job_time_s", "cpu_s",
+    "gt_translation_error_mm", "gt_rotation_error_deg", "resumed_at_frame", "starts", "host", "log", "config", "error",
 )
 
 
@@ -77,7 +76,7 @@ def run_estimate_job(job: EstimateJob, records_dir: str) -> dict:
     from ..pipelines.checkpoint import frames_done
     from ..pipelines.estimate import EstimateOptions, estimate
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     records = Path(records_dir)
     records.mkdir(parents=True, exist_ok=True)
     host = socket.gethostname()
@@ -101,6 +100,7 @@ def run_estimate_job(job: EstimateJob, records_dir: str) -> dict:
     except Exception as err:
         record.update(status="failed", error=one_line(err), traceback=traceback.format_exc(limit=8))
     record["job_time_s"] = round(time.perf_counter() - t0, 3)
+    record["cpu_s"] = round(time.process_time() - c0, 3)  # all threads of the worker process
     record["starts"] = _count_lines(_starts_path(records, job.name))
     write_record(records, record)
     return record
