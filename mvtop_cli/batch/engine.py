@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import sys
 from dataclasses import dataclass
 from multiprocessing.connection import wait as mp_wait
 from typing import Any, Callable, Iterator
@@ -127,8 +128,10 @@ def _child(send, fn: Callable, threads: int, args: tuple) -> None:
     """A local worker process: run one job, send ("ok", value) or ("error", exception)."""
     try:
         message = ("ok", call_with_threads(fn, threads, args))
-    except Exception as err:  # the job's outcome; anything else (a kill, Ctrl-C) ends the process
+    except Exception as err:  # the job's outcome
         message = ("error", err)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the job stops (leaving its checkpoint), quietly
+        sys.exit(130)
     try:
         send.send(message)
     except Exception as err:  # an unpicklable value or exception

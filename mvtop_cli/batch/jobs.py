@@ -231,10 +231,12 @@ def parse_modalities(value: Any, where: str) -> tuple[str, ...]:
     return mods
 
 
-def _jobs(named: list[tuple[str, Path]], settings: list[tuple[Path, dict]], out: Path, source: str) -> list[EstimateJob]:
+def _jobs(named: list[tuple[str, Path]], settings: list[tuple[Path, dict]], out: Path,
+          source: str) -> list[EstimateJob]:
+    """The jobs of (name, log) with (config, options) each; one output folder per name."""
     seen: dict[str, Path] = {}
     jobs = []
-    for (name, log), (cfg, opts) in zip(named, settings):
+    for (name, log), (cfg, opts) in zip(named, settings, strict=True):
         if name in seen:
             raise MvtopError(f"{source}: two logs would write to {out / name} ({seen[name]} and {log}); give them "
                              "different file names, or list them in a manifest with a 'name' column")

@@ -48,5 +48,6 @@ def test_no_running_cluster_is_one_line(monkeypatch):
     if ray.is_initialized():
         ray.shutdown()
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
-    with pytest.raises(MvtopError, match=r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"):
+    expected = r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"
+    with pytest.raises(MvtopError, match=expected):
         list(RayEngine("auto").run(print, [("x",)]))

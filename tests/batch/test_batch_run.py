@@ -9,7 +9,7 @@ import json
 import subprocess
 import sys
 
-from _batch_logs import CONFIG, OPTIONS, assert_same_outputs, kill_worker_after, make_logs, serial_run
+from _batch_logs import CONFIG, assert_same_outputs, kill_worker_after, make_logs, serial_run
 
 from mvtop_cli.batch.engine import LocalEngine
 from mvtop_cli.batch.run import RECORDS_DIR, TABLE_COLUMNS, BatchProgress, format_progress, run_batch
@@ -69,4 +69,5 @@ def test_command_line_batch_summary_and_exit_code(tmp_path):
 
     bad = subprocess.run([sys.executable, "-m", "mvtop_cli", "estimate", str(tmp_path / "logs"), "--manifest",
                           str(manifest), *args], capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and bad.stderr.strip() == "mvtop: error: give either LOG arguments or --manifest, not both"
+    assert bad.returncode == 2
+    assert bad.stderr.strip() == "mvtop: error: give either LOG arguments or --manifest, not both"
