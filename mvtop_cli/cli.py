@@ -352,10 +352,11 @@ def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face
 
 
 @cli.command("estimate")
-@click.argument("log", type=LOG_PATH)
+@click.argument("log", nargs=-1, type=LOG_PATH)
 @CONFIG_OPTION
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Output folder: track.mcap, track.csv, summary.json, config.resolved.yaml.")
+              help="Output folder: track.mcap, track.csv, summary.json, config.resolved.yaml (several logs: "
+                   "one folder per log in it, and runs.csv).")
 @click.option("--modalities", metavar="LIST",
               help="Comma-separated subset of vision,tactile,contact (default: the config's).")
 @particles_option(what="Number of particles")
@@ -365,8 +366,17 @@ def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face
               help="Continue an interrupted run from the checkpoint in --out, after its last completed frame "
                    "(same log, config and options needed; the track is that of an uninterrupted run). Without "
                    "--resume a checkpoint left in --out is discarded and the run starts at the first frame.")
-def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities: str | None, particles: int | None,
-                 seed: int | None, max_frames: int | None, resume: bool) -> None:
+@click.option("--manifest", type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV or YAML table of logs to estimate: columns log, config, seed, modalities, particles, "
+                   "max_frames, name (see README.md, Many logs).")
+@click.option("--workers", type=click.IntRange(1, 256), default=1, show_default=True,
+              help="Several logs: parallel worker processes on this machine (with --ray local: its CPUs).")
+@click.option("--ray", "ray_address", metavar="ADDRESS",
+              help="Several logs: run them as Ray tasks: local (a Ray instance on this machine), auto (the cluster "
+                   "this machine joined with `ray start`) or a cluster address HOST:PORT. Needs the ray extra.")
+def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path, modalities: str | None,
+                 particles: int | None, seed: int | None, max_frames: int | None, resume: bool,
+                 manifest: Path | None, workers: int, ray_address: str | None) -> None:
     """Estimate the object's pose in every frame of LOG and write the pose track to --out.
 
     Runs the M-VTOP particle filter: object masks from every camera and tactile image,
@@ -377,10 +387,20 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
     completes). Stopped by Ctrl-C or SIGTERM, the run leaves no partly written output, says
     how many frames are checkpointed and exits with 130 (Ctrl-C) or 143 (SIGTERM); add
     --resume to the same command to continue (docs/long-runs.md).
+
+    Several LOGs, a folder of logs, a glob pattern or --manifest: each log is estimated into
+    a folder of its own in --out, on --workers processes or Ray tasks (--ray), and OUT/runs.csv
+    gets a row per log; running the same command again skips the logs already done.
     """
+    from .batch.jobs import is_batch_input
     from .config import MODALITIES, load_config
     from .pipelines.estimate import EstimateOptions, estimate
 
+    if manifest is not None or len(log) != 1 or is_batch_input(log[0]):
+        _estimate_many(log, manifest, config_path, out_dir, modalities, particles, seed, max_frames, workers,
+                       ray_address)
+        return
+    log = log[0]
     if config_path is None:
         raise MvtopError("estimate needs --config CFG (see configs/)")
     cfg = load_config(config_path)
@@ -431,6 +451,72 @@ def estimate_cmd(log: Path, config_path: Path | None, out_dir: Path, modalities:
 
     for line in warning_report(summary):  # one line per kind of failure (summary.json has every frame)
         click.echo(f"mvtop: warning: {line} (see summary.json)", err=True)
+
+
+def _estimate_many(logs: tuple[Path, ...], manifest: Path | None, config_path: Path | None, out_dir: Path,
+                   modalities: str | None, particles: int | None, seed: int | None, max_frames: int | None,
+                   workers: int, ray_address: str | None) -> None:
+    """``mvtop estimate`` over several logs (see batch/): the job list, the batch with its
+    progress, the summary line, and a line per failed log; exit code 1 when a log failed."""
+    from .batch.engine import make_engine
+    from .batch.jobs import jobs_from_arguments, jobs_from_manifest, parse_modalities
+    from .batch.run import format_summary, run_batch
+    from .config import load_config
+
+    if manifest is not None and logs:
+        raise MvtopError("give either LOG arguments or --manifest, not both")
+    if manifest is None and not logs:
+        raise MvtopError("estimate needs a LOG (or several, a folder, a glob pattern) or --manifest FILE")
+    defaults = {"modalities": None if not modalities else parse_modalities(modalities, "--modalities"),
+                "particles": particles, "seed": seed, "max_frames": max_frames}
+    jobs = (jobs_from_manifest(manifest, config_path, out_dir, defaults) if manifest is not None
+            else jobs_from_arguments([str(p) for p in logs], config_path, out_dir, defaults))
+    for cfg in sorted({j.config for j in jobs}):  # a bad config stops the batch before any work
+        load_config(cfg)
+    engine = make_engine(workers, ray_address)
+    with _sigterm_interrupts(), _batch_progress("estimate") as update:
+        summary = run_batch(jobs, out_dir, engine, progress=update)
+    click.echo(format_summary(summary))
+    failed = [r for r in summary["records"] if r["status"] != "ok"]
+    for r in failed if sys.stderr.isatty() else []:  # (in a log, each failure had its line when it happened)
+        click.echo(f"mvtop: {r['name']} failed: {r['error']}", err=True)
+    if failed:
+        click.echo(f"mvtop: error: {len(failed)} of {len(jobs)} logs failed (see {summary['table']})", err=True)
+        sys.exit(1)
+
+
+@contextlib.contextmanager
+def _batch_progress(label: str):
+    """Progress of a batch on stderr; yields ``update(BatchProgress)``. On a terminal a bar
+    (logs done, failed, time left); else a line per failed log and a progress line at most
+    every ``_PLAIN_PROGRESS_INTERVAL_S`` seconds, and at the end."""
+    from .batch.run import format_progress
+
+    state = {"bar": None, "start": 0, "last": time.monotonic()}
+
+    def update(p) -> None:
+        if not sys.stderr.isatty():
+            now = time.monotonic()
+            if p.last is not None and p.last.get("status") != "ok":
+                click.echo(f"{label}: {p.last['name']} failed: {p.last.get('error')}", err=True)
+            if (p.done >= p.total and p.done > p.skipped) or now - state["last"] >= _PLAIN_PROGRESS_INTERVAL_S:
+                state["last"] = now
+                click.echo(format_progress(p, label), err=True)
+            return
+        if state["bar"] is None:
+            state["start"] = p.skipped
+            state["bar"] = click.progressbar(length=max(p.total - p.skipped, 1), label=f"{label} {p.total} logs",
+                                             file=sys.stderr, show_eta=True, show_percent=False,
+                                             item_show_func=lambda item: item)
+            state["bar"].__enter__()
+        failed = f", {p.failed} failed" if p.failed else ""
+        state["bar"].update(p.done - state["start"] - state["bar"].pos, f"{p.done}/{p.total} done{failed}")
+
+    try:
+        yield update
+    finally:
+        if state["bar"] is not None:
+            state["bar"].__exit__(None, None, None)
 
 
 @cli.command("eval")
@@ -618,9 +704,12 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
+@click.option("--ray", "ray_address", metavar="ADDRESS",
+              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
+                   "writes into --out, which must be on a file system they share.")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                           methods: str, frames: int,
-                           particles: int | None, workers: int, import_results: Path | None, summary_only: bool) -> None:
+                           methods: str, frames: int, particles: int | None, workers: int,
+                           import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
@@ -644,7 +733,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
-                              import_results=import_results, summary_only=summary_only, object_files=files)
+                              import_results=import_results, summary_only=summary_only, object_files=files,
+                              ray=ray_address)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))

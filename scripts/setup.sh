@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up mvtop on a fresh Debian/Ubuntu machine with Python >= 3.10:
 #   1. system libraries for offscreen OpenGL over EGL (pyrender), installed with apt-get if missing;
-#   2. a virtual environment in .venv with mvtop and its test extras.
+#   2. a virtual environment in .venv with mvtop, its test extras and the ray extra (--ray).
 # Safe to run again: it only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,5 +25,5 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
-.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
+.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,ray]'
 echo "setup: ready (.venv/bin/mvtop)"

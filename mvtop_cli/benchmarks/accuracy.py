@@ -27,13 +27,13 @@ import json
 import os
 import time
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from ..batch.engine import make_engine
 from ..durations import format_duration
 from ..errors import MvtopError
 from ..eval import report as R
@@ -68,6 +68,7 @@ class AccuracyOptions:
     object_files: tuple[tuple[str, str], ...] = ()  # (name, object file path) of objects in ``objects``
     import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
     summary_only: bool = False  # tables over the finished runs; no run is made
+    ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
 
 
 RESULTS_FILE = "results.jsonl.gz"
@@ -170,27 +171,19 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                          "(expected runs/*/result.json, or --import-results FILE)")
     if progress is not None:
         progress(done, len(jobs))
-    threads = max(1, (os.cpu_count() or 1) // max(1, options.workers))
+    engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     t0 = time.perf_counter()
-    if options.workers <= 1:
-        for obj, seed, method, run_dir in todo:
-            reports[(obj, seed, method)] = _run_one(obj, seed, method, str(run_dir), options.frames, options.particles,
-                                                    threads, dict(options.object_files).get(obj))
-            done += 1
-            if progress is not None:
-                progress(done, len(jobs))
-    else:
-        # methods of one scene share its simulated log; two workers may both simulate it, which
-        # is harmless: simulation is deterministic and the log is written atomically
-        with ProcessPoolExecutor(max_workers=options.workers) as pool:
-            futures = {pool.submit(_run_one, o, s, m, str(d), options.frames, options.particles, threads,
-                                   dict(options.object_files).get(o)): (o, s, m)
-                       for o, s, m, d in todo}
-            for fut in as_completed(futures):
-                reports[futures[fut]] = fut.result()
-                done += 1
-                if progress is not None:
-                    progress(done, len(jobs))
+    # methods of one scene share its simulated log; two workers may both simulate it, which
+    # is harmless: simulation is deterministic and the log is written atomically
+    files = dict(options.object_files)
+    args = [(o, s, m, str(d), options.frames, options.particles, engine.threads, files.get(o)) for o, s, m, d in todo]
+    for outcome in engine.run(_run_one, args):
+        if outcome.error is not None:
+            raise outcome.error
+        reports[todo[outcome.index][:3]] = outcome.value
+        done += 1
+        if progress is not None:
+            progress(done, len(jobs))
     seconds = time.perf_counter() - t0
     if not options.summary_only:
         _append_invocation(out_dir, options, len(todo), imported, seconds)

@@ -1,0 +1,53 @@
+"""A batch estimate as Ray tasks on a local Ray instance (2 CPUs): a bad log is a failed row, a
+worker killed in the middle of a job is retried by Ray and resumes from its checkpoint, and
+every log's outputs equal the serial single-log run. Ray is the optional extra ``mvtop[ray]``
+(scripts/setup.sh installs it): without it these tests are skipped, except in CI."""
+
+from __future__ import annotations
+
+import csv
+import os
+
+import pytest
+from _batch_logs import assert_same_outputs, kill_worker_after, make_logs, serial_run
+
+from mvtop_cli.batch.engine import RayEngine
+from mvtop_cli.batch.run import run_batch
+from mvtop_cli.errors import MvtopError
+
+if not os.environ.get("CI"):
+    pytest.importorskip("ray")
+import ray  # noqa: E402  (in CI a missing ray fails here)
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+def test_ray_batch_with_a_bad_log_and_a_killed_worker_equals_the_serial_runs(tmp_path, local_ray):
+    jobs = make_logs(tmp_path)
+    out = tmp_path / "out"
+    killed = kill_worker_after(out / "b", frames=2)
+    summary = run_batch(jobs, out, RayEngine("auto"))  # joins the instance the fixture started
+    killed["thread"].join(timeout=5)
+    assert "pid" in killed, "the worker of log b was not killed before it finished"
+    assert (summary["ok"], summary["failed"]) == (2, 1)
+    rows = {r["name"]: r for r in csv.DictReader((out / "runs.csv").open())}
+    assert rows["bad"]["status"] == "failed" and "truncated MCAP file" in rows["bad"]["error"]
+    assert rows["b"]["starts"] == "2" and int(rows["b"]["resumed_at_frame"]) >= killed["frames"]
+    assert rows["a"]["starts"] == "1" and rows["a"]["resumed_at_frame"] == "0"
+    for job in jobs[:2]:
+        assert rows[job.name]["status"] == "ok" and rows[job.name]["frames"] == "6"
+        assert_same_outputs(out / job.name, serial_run(job, tmp_path / "serial"))
+
+
+def test_no_running_cluster_is_one_line(monkeypatch):
+    if ray.is_initialized():
+        ray.shutdown()
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    expected = r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"
+    with pytest.raises(MvtopError, match=expected):
+        list(RayEngine("auto").run(print, [("x",)]))
