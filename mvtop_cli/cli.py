@@ -204,7 +204,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
               help="Std of the per-frame log exposure (lighting changes).")
 @click.option("--low-contrast", is_flag=True, help="Paint the object like the gripper (the paper's peg).")
 @click.option("--object-color", metavar="R,G,B", help="Paint the object this colour (0-1 each), e.g. 1,0,1.")
-@click.option("--distortion", metavar="K1,K2,P1,P2,K3", help="Camera lens distortion (plumb_bob), e.g. -0.15,0.05,0,0,0.")
+@click.option("--distortion", metavar="K1,K2,P1,P2,K3",
+              help="Camera lens distortion (plumb_bob), e.g. -0.15,0.05,0,0,0.")
 @click.option("--noise", type=click.FloatRange(0, 50), default=2.0, show_default=True, help="Camera read noise [DN].")
 @click.option("--resolution", default="640x480", show_default=True, metavar="WxH", help="Camera resolution.")
 @click.option("--image-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True,
@@ -213,7 +214,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 @click.option("--tactile-format", type=click.Choice(["jpeg", "png", "raw"]), default="jpeg", show_default=True,
               help="Tactile images, as --image-format.")
 @click.option("--jpeg-quality", type=click.IntRange(10, 100), default=90, show_default=True)
-@click.option("--kinematics", type=click.Choice(["ee-tf", "tf-chain", "joint-states"]), default="ee-tf", show_default=True,
+@click.option("--kinematics", type=click.Choice(["ee-tf", "tf-chain", "joint-states"]), default="ee-tf",
+              show_default=True,
               help="How the log gives the end effector: ee-tf one world->ee transform; tf-chain a gantry robot's TF "
                    "tree (world -> base_link -> six moving links -> flange -> tool0 -> ee); joint-states only "
                    "/joint_states, with the robot's URDF written by --write-config (robot.urdf).")
@@ -232,7 +234,8 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
 @click.option("--list", "list_objects", is_flag=True, help="List the objects and exit.")
 def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_mm, grasp_rotation_deg, grasp_tilt_deg,
                  slip_mm,
-                 slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution, image_format, tactile_format,
+                 slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution,
+                 image_format, tactile_format,
                  jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
                  list_objects) -> None:
     """Simulate a visuo-tactile insertion episode and write it as a ROS 2 MCAP log with ground truth.
@@ -294,7 +297,8 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
             frames=frames, grasp_translation_m=grasp_translation_mm / 1000.0, grasp_rotation_deg=grasp_rotation_deg,
             grasp_tilt_deg=grasp_tilt_deg, slip_translation_m=slip_mm / 1000.0, slip_rotation_deg=slip_deg,
         ),
-        width=width, height=height, noise_std=noise, exposure_jitter=exposure_jitter, low_contrast=low_contrast, object_rgb=rgb, distortion=dist,
+        width=width, height=height, noise_std=noise, exposure_jitter=exposure_jitter, low_contrast=low_contrast,
+        object_rgb=rgb, distortion=dist,
         occluders=occluders, image_format=image_format, tactile_format=tactile_format, jpeg_quality=jpeg_quality,
         compression=compression, kinematics=kinematics,
         timing=SensorTiming(camera_every=camera_every, drop_fraction=drop_fraction, jitter_s=stamp_jitter_ms / 1000.0),
@@ -409,7 +413,8 @@ def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path,
         mods = tuple(m.strip() for m in modalities.split(",") if m.strip())
         bad = [m for m in mods if m not in MODALITIES]
         if bad or not mods:
-            raise MvtopError(f"--modalities: expected a comma-separated subset of {','.join(MODALITIES)}, got {modalities!r}")
+            raise MvtopError(f"--modalities: expected a comma-separated subset of {','.join(MODALITIES)}, "
+                             f"got {modalities!r}")
     if out_dir.exists() and not out_dir.is_dir():
         raise MvtopError(f"{out_dir}: exists and is not a folder")
     options = EstimateOptions(modalities=mods, num_particles=particles, seed=seed, max_frames=max_frames)
@@ -523,7 +528,8 @@ def _batch_progress(label: str):
 @click.argument("track_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--log", "log_path", type=LOG_PATH, help="The log the track was estimated from (its ground truth).")
 @click.option("--gt", "gt_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="YAML/JSON with the true final pose (translation_m, quaternion_xyzw), e.g. the nominal inserted pose.")
+              help="YAML/JSON with the true final pose (translation_m, quaternion_xyzw), e.g. the nominal "
+                   "inserted pose.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Report folder (default: TRACK_DIR/eval).")
 @click.option("--bop-name", metavar="METHOD_DATASET-SPLIT",
@@ -569,7 +575,8 @@ def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_d
 @click.option("--pose-ee", metavar="X,Y,Z,QX,QY,QZ,QW",
               help="Render at this object pose in the ee frame (metres, quaternion xyzw) instead of a track.")
 @click.option("--no-video", is_flag=True, help="Skip masks.mp4.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Output folder.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder.")
 def render_masks_cmd(log: Path, config_path: Path | None, track_dir: Path | None, frames_spec: str | None,
                      pose_ee: str | None, no_video: bool, out_dir: Path) -> None:
     """Show what the estimator sees: per frame and sensor the image, the observed mask, the
@@ -662,7 +669,8 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
         meshes = {"cube": get_object("cube").mesh}
     rows = benchmark_render(counts, meshes=meshes, reference=not no_reference, repeats=repeats)
     out = [{"particles": r["particles"], "evals_per_s": round(r["evals_per_s"], 1),
-            "reference_evals_per_s": None if r["reference_evals_per_s"] is None else round(r["reference_evals_per_s"], 1),
+            "reference_evals_per_s": (None if r["reference_evals_per_s"] is None
+                                      else round(r["reference_evals_per_s"], 1)),
             "mesh": r["mesh"], "threads": r["threads"]} for r in rows]
     masking = None
     if log_path is not None:
@@ -679,9 +687,11 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
     for r in out:
         ref = r["reference_evals_per_s"]
         ratio = f"{r['evals_per_s'] / ref:8.0f}x" if ref else "        -"
-        click.echo(f"{r['mesh']:<10} {r['particles']:>9} {r['evals_per_s']:>10.0f} {ref or float('nan'):>17.0f} {ratio}")
+        click.echo(f"{r['mesh']:<10} {r['particles']:>9} {r['evals_per_s']:>10.0f} "
+                   f"{ref or float('nan'):>17.0f} {ratio}")
     if masking is not None:
-        click.echo(f"masking per frame ({cfg.masking.camera.backend} cameras, {cfg.masking.tactile.backend}/depth tactile): "
+        click.echo(f"masking per frame ({cfg.masking.camera.backend} cameras, "
+                   f"{cfg.masking.tactile.backend}/depth tactile): "
                    + ", ".join(f"{k[:-3].replace('_', ' ')} {v:.1f} ms" for k, v in masking.items()))
 
 
@@ -732,7 +742,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
-    options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles, workers=workers,
+    options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles,
+                              workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
                               ray=ray_address)
     with _progress("benchmark accuracy") as update:
@@ -780,7 +791,8 @@ def benchmark_long_log_cmd(size_gb: float, particles: int, object_name: str, see
     if as_json:
         click.echo(json.dumps(result))
         return
-    click.echo(f"log: {log['bytes'] / 1e9:.2f} GB, {log['frames']} frames at 10 Hz ({log['contact_frames']} in contact): "
+    click.echo(f"log: {log['bytes'] / 1e9:.2f} GB, {log['frames']} frames at 10 Hz "
+               f"({log['contact_frames']} in contact): "
                f"simulated {object_name} episode (seed {seed}), per frame 2 raw rgb8 camera images 640x480, 2 raw "
                f"rgb8 tactile images and 2 32FC1 depth maps, uncompressed chunks"
                + (f"; reused from {result['folder']}" if log.get("reused") else ""))
@@ -795,7 +807,8 @@ def benchmark_long_log_cmd(size_gb: float, particles: int, object_name: str, see
             return "n/a"
         return f"{a:.3f} / {b:.3f} (ratio {b / a:.2f})"
 
-    click.echo(f"seconds per frame, first / last quarter of the frames: wall {pair('s_per_frame_first_quarter', 's_per_frame_last_quarter')}"
+    click.echo("seconds per frame, first / last quarter of the frames: wall "
+               f"{pair('s_per_frame_first_quarter', 's_per_frame_last_quarter')}"
                f", CPU {pair('cpu_s_per_frame_first_quarter', 'cpu_s_per_frame_last_quarter')}")
     click.echo(f"seconds per frame, first / last half of the contact phase (frames {est['contact_from_frame']}-"
                f"{est['frames'] - 1}): wall {pair('s_per_frame_contact_first_half', 's_per_frame_contact_last_half')}, "

@@ -121,7 +121,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
         from .baselines.run import BaselineOptions, estimate_chsel
 
         summary = estimate_chsel(log, cfg, run, BaselineOptions(chsel=ChselOptions(threads=threads), seed=seed))
-        extra = {k: summary["baseline"][k] for k in ("points_seconds", "registration_seconds", "registration_cpu_seconds")}
+        keys = ("points_seconds", "registration_seconds", "registration_cpu_seconds")
+        extra = {k: summary["baseline"][k] for k in keys}
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                            "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
@@ -365,7 +366,8 @@ def render_html(summary: dict) -> str:
         "<title>mvtop benchmark accuracy</title>",
         f"<style>{R.REPORT_CSS}</style></head><body>",
         "<h1>mvtop benchmark accuracy</h1>",
-        f"<p>{runs} runs: objects {html.escape(', '.join(objs))}; methods {html.escape(', '.join(summary['methods']))}; "
+        f"<p>{runs} runs: objects {html.escape(', '.join(objs))}; "
+        f"methods {html.escape(', '.join(summary['methods']))}; "
         f"{summary['poses']} grasps per object requested. Final-frame errors against ground truth (mvtop eval, "
         "symmetry-aware). Boxes: quartiles and median; whiskers: 1.5 interquartile ranges; dots: beyond.</p>",
         *figure_svgs(summary),
@@ -438,7 +440,8 @@ def format_table(summary: dict) -> str:
                 reg, reg_cpu = a.get("registration_seconds"), a.get("registration_cpu_seconds")
                 cell = "-" if s is None else f"{s['median']:.1f}" + ("" if cpu is None else f" / {cpu['median']:.1f}")
                 if reg is not None:
-                    cell += f" (registration {reg['median']:.1f}" + ("" if reg_cpu is None else f" / {reg_cpu['median']:.1f}") + ")"
+                    cpu_part = "" if reg_cpu is None else f" / {reg_cpu['median']:.1f}"
+                    cell += f" (registration {reg['median']:.1f}" + cpu_part + ")"
                 cells.append(cell)
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
