@@ -27,6 +27,7 @@ WARNING_KINDS: dict[str, str] = {
     "mesh_repaired": "a mesh was not watertight or had degenerate faces and was repaired",
     "mesh_open": "an occluder mesh is not watertight (used as it is)",
     "units_suspect": "a mesh's size does not fit the scene: its units may be wrong",
+    "contact_grid_coarse": "the contact grid's cells are coarser than the part's clearance",
 }
 
 
