@@ -359,3 +359,15 @@ def closest_symmetry(
     worst = np.linalg.norm(_point_displacements(D, pts), axis=-1).max(axis=-1)  # (N, m)
     # Round so that equivalents equal up to float noise tie and the identity wins.
     return np.argmin(np.round(worst, 12), axis=-1).reshape(lead)
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points (n, 3) uniformly distributed over a triangle mesh's area."""
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    idx = rng.choice(len(tri), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    t = tri[idx]
+    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])

@@ -352,18 +352,6 @@ class ObjectModel:
     directional_clearance: tuple[tuple[float, float], tuple[float, float]] | None = None  # [m], see config
 
 
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` points (n, 3) uniformly distributed over a triangle mesh's area."""
-    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    idx = rng.choice(len(tri), size=n, p=area / area.sum())
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    t = tri[idx]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
-
-
 def object_model(cfg: Config) -> ObjectModel:
     """Load the object's mesh and precompute its point sets and symmetry group."""
     from ..io.meshes import load_mesh
@@ -380,7 +368,7 @@ def object_model(cfg: Config) -> ObjectModel:
         group = M.symmetry_group(syms, tol=1e-6)
     except ValueError as err:
         raise ConfigError(f"{cfg.source}: object.symmetries: {err}") from None
-    samples = sample_surface(V, mesh.faces, SURFACE_SAMPLES, np.random.default_rng(SAMPLE_SEED))
+    samples = M.sample_surface(V, mesh.faces, SURFACE_SAMPLES, np.random.default_rng(SAMPLE_SEED))
     lo, hi = V.min(axis=0), V.max(axis=0)
     # The leading face is the object's lowest z (frames.md: +z points away from the
     # receptacle); a zero depth still checks that face.

@@ -121,7 +121,7 @@ def simplification_error(original: trimesh.Trimesh, simplified: trimesh.Trimesh)
 
 
 def _samples(mesh: trimesh.Trimesh, n: int = _SAMPLES) -> np.ndarray:
-    from ..pipelines.evaluate import sample_surface
+    from ..eval.metrics import sample_surface
 
     return sample_surface(mesh.vertices, mesh.faces, n, np.random.default_rng(_SEED))
 
