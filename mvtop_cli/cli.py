@@ -637,16 +637,25 @@ def benchmark_group() -> None:
 @click.option("--repeats", type=click.IntRange(1, 100), default=7, show_default=True, help="Best of this many runs.")
 @click.option("--no-reference", is_flag=True, help="Skip the one-pyrender-call-per-particle reference path.")
 @click.option("--log", "log_path", type=LOG_PATH,
-              help="Also time the masking backends of --config per frame on this log (e.g. its sample log).")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON list of rows for scripts.")
+              help="Instead, run `estimate` with --config over this log and print the time per stage and frame "
+                   "(first frame and later frames apart), the wall-over-log-time ratio and the masking backends' "
+                   "time per frame.")
+@click.option("--max-frames", type=click.IntRange(min=2), help="With --log: only the first frames.")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON for scripts.")
 def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: int, no_reference: bool,
-                        log_path: Path | None, as_json: bool) -> None:
+                        log_path: Path | None, max_frames: int | None, as_json: bool) -> None:
     """Particle x sensor evaluations per second (render + IoU in a region of interest) of the
     batched renderer, beside one pyrender call per particle, for 2 cameras and 2 tactile sensors
-    looking at the object of --config (default: the simulator's cube); with --log, the
-    per-frame masking time of the config's backends too."""
+    looking at the object of --config (default: the simulator's cube). With --log, the estimate's
+    time per stage and frame on that log instead."""
     import json
     import os
+
+    if log_path is not None:
+        if config_path is None:
+            raise MvtopError("--log needs --config (the estimate runs with it)")
+        _profile_estimate(log_path, config_path, max_frames, as_json)
+        return
 
     from .benchmarks.render_speed import benchmark_render
 
@@ -672,15 +681,8 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
             "reference_evals_per_s": (None if r["reference_evals_per_s"] is None
                                       else round(r["reference_evals_per_s"], 1)),
             "mesh": r["mesh"], "threads": r["threads"]} for r in rows]
-    masking = None
-    if log_path is not None:
-        if config_path is None:
-            raise MvtopError("--log needs --config (the masking backends come from the config)")
-        from .benchmarks.masking_speed import masking_speed
-
-        masking = masking_speed(log_path, cfg)
     if as_json:
-        click.echo(json.dumps(out if masking is None else {"render": out, "masking_ms_per_frame": masking}))
+        click.echo(json.dumps(out))
         return
     click.echo(f"machine: {os.cpu_count()} cores; numba threads: {out[0]['threads']}; 2 cameras + 2 tactile sensors")
     click.echo(f"{'mesh':<10} {'particles':>9} {'evals/s':>10} {'pyrender evals/s':>17} {'speed-up':>9}")
@@ -689,10 +691,44 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
         ratio = f"{r['evals_per_s'] / ref:8.0f}x" if ref else "        -"
         click.echo(f"{r['mesh']:<10} {r['particles']:>9} {r['evals_per_s']:>10.0f} "
                    f"{ref or float('nan'):>17.0f} {ratio}")
-    if masking is not None:
-        click.echo(f"masking per frame ({cfg.masking.camera.backend} cameras, "
-                   f"{cfg.masking.tactile.backend}/depth tactile): "
-                   + ", ".join(f"{k[:-3].replace('_', ' ')} {v:.1f} ms" for k, v in masking.items()))
+
+
+def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None, as_json: bool) -> None:
+    """``benchmark speed --log``: the estimate's time per stage, and the masking backends'."""
+    import json
+    import os
+
+    from .benchmarks.frame_profile import profile_estimate
+    from .benchmarks.masking_speed import masking_speed
+    from .config import load_config
+
+    cfg = load_config(config_path)
+    with _progress(f"profile {log_path.name}") as update:
+        update(0, 2)
+        prof = profile_estimate(log_path, cfg, max_frames)
+        update(1, 2)
+        masking = masking_speed(log_path, cfg)
+        update(2, 2)
+    if as_json:
+        click.echo(json.dumps({**prof, "masking_ms_per_frame": masking}))
+        return
+    click.echo(f"machine: {os.cpu_count()} cores; {log_path}: {prof['frames_processed']} frames over "
+               f"{prof['log_s']:.2f} s of log, {cfg.filter.num_particles} particles, modalities "
+               f"{','.join(cfg.modalities)}; run {prof['run_time_s']:.1f} s, start-up {prof['startup_s']:.2f} s")
+    first, later = prof["first_frame"], prof.get("later_frames_mean") or {}
+    click.echo(f"{'stage [ms per frame]':<28} {'first frame':>12} {'later (mean)':>13}")
+    names = (("read_s", "read and decode"), ("masking_s", "masking (observation)"), ("search_s", "searches"),
+             ("filter_s", "prediction + refinement"), ("likelihood_s", "  of which likelihood"),
+             ("step_s", "whole step"))
+    for key, label in names:
+        click.echo(f"{label:<28} {1e3 * first[key]:>12.1f} {1e3 * later.get(key, float('nan')):>13.1f}")
+    for key, label in (("likelihood_calls", "likelihood calls"), ("poses_scored", "poses scored")):
+        click.echo(f"{label:<28} {first[key]:>12.0f} {later.get(key, float('nan')):>13.0f}")
+    ratio = prof["wall_over_log"]
+    click.echo("wall time over log time (frames after the first): " + ("n/a" if ratio is None else f"{ratio:.2f}"))
+    click.echo(f"masking backends per frame ({cfg.masking.camera.backend} cameras, "
+               f"{cfg.masking.tactile.backend}/depth tactile): "
+               + ", ".join(f"{k[:-3].replace('_', ' ')} {v:.1f} ms" for k, v in masking.items()))
 
 
 @benchmark_group.command("accuracy")

@@ -16,6 +16,7 @@ frame is redone from the searched poses and kept if its estimate fits better.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -63,6 +64,8 @@ class FrameEstimate:
     sensor_iou: dict[str, float] = field(default_factory=dict)
     # the sensor consistency watch after this frame (``Estimator.restore_consistency`` on resume)
     consistency: dict = field(default_factory=dict)
+    # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
+    timings: dict = field(default_factory=dict)
 
 
 class Estimator:
@@ -105,6 +108,7 @@ class Estimator:
                        "floor_rotation_rad": np.radians(s.floor_rotation_deg)}
         self.particles: ParticleSet | None = None
         self.last_likelihood: Likelihood | None = None
+        self._search_s = 0.0  # search time of the current frame
         self.use_contact = "contact" in cfg.modalities
 
     @classmethod
@@ -125,15 +129,19 @@ class Estimator:
         """One frame: observation, likelihood, filter update, and the failure checks of
         ``filter.health``; the estimate is checked against the previous frame's belief and
         the motion model (``estimate_jump``)."""
+        t_step = time.perf_counter()
+        self._search_s = 0.0
         first = self.particles is None
         if first:
             self.particles = self.prior.sample(self.cfg.filter.num_particles, self.rng)
         ps = self.particles
         contact = frame.contact if self.use_contact else None
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
+        t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
         self.last_likelihood = likelihood  # for diagnostics: the frame's likelihood at any pose, e.g. the truth's
         result = self._assimilate(ps, first, contact, bool(observation.sensors), likelihood)
+        t_filter = time.perf_counter()
         counts = {"invalid_log_likelihood": likelihood.invalid, "evaluated_poses": likelihood.evaluated}
         warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, self.cfg.filter.num_particles)
         flags = list(result.flags)
@@ -175,6 +183,10 @@ class Estimator:
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
             warnings=tuple(warnings), sensor_iou=sensor_iou,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
+            timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
+                     "filter_s": t_filter - t_masks - self._search_s, "likelihood_s": likelihood.seconds,
+                     "likelihood_calls": likelihood.calls, "poses_scored": likelihood.evaluated,
+                     "step_s": time.perf_counter() - t_step},
         )
 
     def restore_consistency(self, state: dict) -> None:
@@ -224,8 +236,11 @@ class Estimator:
 
     def _prior_search(self, bounded: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """One cross-entropy search from fresh grasp-prior samples: poses and log-likelihoods."""
+        t0 = time.perf_counter()
         start = self.prior.sample(self.cfg.filter.num_particles * self.cfg.search.init_factor, self.rng).poses
-        return cross_entropy_search(start, bounded, self.rng, **self.search)
+        out = cross_entropy_search(start, bounded, self.rng, **self.search)
+        self._search_s += time.perf_counter() - t0
+        return out
 
     def _recheck(self, result: StepResult, first: bool, likelihood: Likelihood,
                  bounded: Callable[[np.ndarray], np.ndarray]) -> StepResult:
@@ -239,9 +254,11 @@ class Estimator:
         if first:
             poses, ll = self._prior_search(bounded)
         else:
+            t0 = time.perf_counter()
             poses, ll = local_search(result.particles, bounded, self.rng, s.recheck_sigma_translation_m,
                                      np.radians(s.recheck_sigma_rotation_deg),
                                      **{**self.search, "rounds": s.recheck_rounds})
+            self._search_s += time.perf_counter() - t0
         if not np.isfinite(ll).any():
             return result
         best = poses[int(np.argmax(ll))]

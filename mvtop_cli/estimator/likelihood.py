@@ -35,6 +35,7 @@ term as 0, the worst possible IoU, so such particles are never favoured.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -209,6 +210,8 @@ class Likelihood:
         self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
         self.evaluated = 0
         self.invalid = 0
+        self.calls = 0
+        self.seconds = 0.0  # wall time spent scoring (render + IoU + contact)
 
     def informative(self, ious: dict[str, float]) -> dict[str, bool]:
         """Per observed sensor, whether its IoUs at a pose (``sensor_ious``) say anything: not
@@ -245,6 +248,7 @@ class Likelihood:
 
     def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
         """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
+        t0 = time.perf_counter()
         iou_t, iou_v = self.ious(T_ee_object)
         score = visuo_tactile_score(iou_t, iou_v, self.gamma if len(self.gamma) else None,
                                     self.nu if len(self.nu) else None, renormalise=False) / self.cfg.filter.temperature
@@ -254,4 +258,6 @@ class Likelihood:
         score, invalid = valid_log_likelihood(score)
         self.invalid += invalid
         self.evaluated += len(score)
+        self.calls += 1
+        self.seconds += time.perf_counter() - t0
         return score

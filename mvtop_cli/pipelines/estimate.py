@@ -21,7 +21,7 @@ from ..io.frames import FrameReader, LogTopics, SensorTopics
 from ..io.mcap_reader import McapLog
 from ..records import Frame
 from .checkpoint import Checkpoint, EstimateInterrupted, Restored, fingerprint
-from .track import run_summary, write_track
+from .track import run_summary, stage_timing, write_track
 
 
 @dataclass(frozen=True)
@@ -103,6 +103,7 @@ def estimate(
             reader = FrameReader(log, sensors, log_topics(cfg))
             total = _count_frames(log, sensors, options.max_frames)
             estimator = Estimator(cfg, scene, lambda frame, t: reader.tf.lookup(cfg.frames.world, frame, t))
+            startup_s = time.perf_counter() - t_start
             if ck is None:
                 created = not out_dir.exists()
                 out_dir.mkdir(parents=True, exist_ok=True)
@@ -134,6 +135,7 @@ def estimate(
         summary = run_summary(results, cfg, log_path, elapsed, skipped, scene.warnings)
         summary["resumed_at_frame"] = restored.frames_done
         summary["checkpoint_ms_per_frame"] = round(1e3 * ck.write_seconds / max(ck.writes, 1), 3)
+        summary["timing"] = stage_timing(results, startup_s)
         write_track(out_dir, results, cfg, summary)
     except KeyboardInterrupt as err:
         ck.close()
@@ -160,11 +162,18 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
         progress(min(done, total), total)
     primed: set[str] = set()
     n = 0
-    for frame in reader:
+    frames = iter(reader)
+    while True:
+        t_read = time.perf_counter()
+        frame = next(frames, None)
+        if frame is None:
+            break
         if n < done:
             _prime_observer(estimator, frame, primed)
         else:
+            read_s = time.perf_counter() - t_read
             result = estimator.step(frame)
+            result.timings["read_s"] = read_s
             ck.record(result, estimator.particles, estimator.rng, restored.elapsed_s + time.perf_counter() - t_start)
             if progress is not None:
                 progress(n + 1, total)

@@ -67,6 +67,41 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
     return out
 
 
+STAGES = ("read_s", "masking_s", "search_s", "filter_s", "likelihood_s", "step_s")
+
+
+def stage_timing(results, startup_s: float) -> dict:
+    """Where the time went: ``startup_s`` (meshes, contact grid, log index) and, for the first
+    frame and as the mean over the later frames, the wall seconds per stage (``read_s`` decoding
+    the frame, ``masking_s`` the observation, ``search_s`` the searches, ``filter_s`` prediction
+    and refinement, ``likelihood_s`` all scoring inside those two, ``step_s`` the whole step),
+    the likelihood calls and poses scored; ``log_s`` the time the frames span and
+    ``wall_over_log`` the frames' wall time (reading and steps, after the first) over it."""
+    rows = [r.timings for r in results if r.timings]
+    if not rows:
+        return {}
+
+    def stats(sel: list[dict]) -> dict:
+        out = {k: round(float(np.mean([t.get(k, 0.0) for t in sel])), 6) for k in STAGES}
+        out["likelihood_calls"] = float(np.mean([t.get("likelihood_calls", 0) for t in sel]))
+        out["poses_scored"] = float(np.mean([t.get("poses_scored", 0) for t in sel]))
+        return out
+
+    later = rows[1:]
+    stamps = [r.stamp_ns for r in results]
+    log_s = (stamps[-1] - stamps[0]) / 1e9
+    later_wall = sum(t.get("read_s", 0.0) + t.get("step_s", 0.0) for t in later)
+    interval_s = log_s / max(len(stamps) - 1, 1)
+    return {
+        "startup_s": round(startup_s, 3),
+        "first_frame": stats(rows[:1]),
+        "later_frames_mean": stats(later) if later else {},
+        "frames": len(rows),
+        "log_s": round(log_s, 3),
+        "wall_over_log": round(later_wall / (interval_s * len(later)), 3) if later and interval_s > 0 else None,
+    }
+
+
 def warning_report(summary: dict) -> list[str]:
     """The summary's warnings for the terminal: one line per kind, saying in how many frames."""
     return warning_lines(summary.get("warnings", []), summary["frames_processed"])

@@ -23,6 +23,25 @@ def test_benchmark_speed_json_rows():
         assert r["evals_per_s"] > r["reference_evals_per_s"]  # batched beats one render per particle
 
 
+def test_benchmark_speed_on_a_log_times_every_stage():
+    root = Path(__file__).resolve().parents[2]
+    proc = run("benchmark", "speed", "--config", str(root / "configs" / "conn2.yaml"), "--log",
+               str(root / "sample_logs" / "conn2.mcap"), "--max-frames", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    prof = json.loads(proc.stdout)
+    assert prof["frames_processed"] == 3 and prof["frames"] == 3
+    assert prof["log_s"] == 0.2 and prof["startup_s"] > 0 and prof["wall_over_log"] > 0
+    for part in (prof["first_frame"], prof["later_frames_mean"]):
+        assert all(part[k] > 0 for k in ("read_s", "masking_s", "search_s", "filter_s", "likelihood_s", "step_s"))
+        # every likelihood call is inside the searches or the filter, and those inside the step
+        assert part["likelihood_s"] <= part["search_s"] + part["filter_s"] + 1e-3
+        assert part["masking_s"] + part["search_s"] + part["filter_s"] <= part["step_s"] + 1e-6
+        assert part["poses_scored"] >= 500 and part["likelihood_calls"] >= 1
+    # the first frame searches the grasp prior: far more poses than a later frame
+    assert prof["first_frame"]["poses_scored"] > 5 * prof["later_frames_mean"]["poses_scored"]
+    assert set(prof["masking_ms_per_frame"]) >= {"camera_proposals_ms", "tactile_ms"}
+
+
 def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     out = tmp_path / "bench"
     args = ("benchmark", "accuracy", "--out", str(out), "--objects", "conn2", "--poses", "1", "--methods", "M-TOP",
