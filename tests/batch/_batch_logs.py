@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 LOG, CONFIG = ROOT / "sample_logs" / "cube.mcap", ROOT / "configs" / "cube.yaml"
 OPTIONS = {"modalities": None, "particles": 30, "seed": 4, "max_frames": 6}
 # what differs between two runs of the same command: the time taken, and where a resumed run resumed
-TIMING_KEYS = ("run_time_s", "time_per_frame_s", "checkpoint_ms_per_frame", "resumed_at_frame")
+TIMING_KEYS = ("run_time_s", "time_per_frame_s", "checkpoint_ms_per_frame", "resumed_at_frame", "timing")
 
 
 def make_logs(folder: Path) -> list[EstimateJob]:

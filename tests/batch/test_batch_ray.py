@@ -27,6 +27,17 @@ def local_ray():
     ray.shutdown()
 
 
+def test_no_running_cluster_is_one_line(monkeypatch):
+    """Runs before the module's local instance starts: a Ray instance shut down a moment ago
+    can still be found by ``auto`` while its processes exit."""
+    if ray.is_initialized():
+        ray.shutdown()
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    expected = r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"
+    with pytest.raises(MvtopError, match=expected):
+        list(RayEngine("auto").run(print, [("x",)]))
+
+
 def test_ray_batch_with_a_bad_log_and_a_killed_worker_equals_the_serial_runs(tmp_path, local_ray):
     jobs = make_logs(tmp_path)
     out = tmp_path / "out"
@@ -42,12 +53,3 @@ def test_ray_batch_with_a_bad_log_and_a_killed_worker_equals_the_serial_runs(tmp
     for job in jobs[:2]:
         assert rows[job.name]["status"] == "ok" and rows[job.name]["frames"] == "6"
         assert_same_outputs(out / job.name, serial_run(job, tmp_path / "serial"))
-
-
-def test_no_running_cluster_is_one_line(monkeypatch):
-    if ray.is_initialized():
-        ray.shutdown()
-    monkeypatch.delenv("RAY_ADDRESS", raising=False)
-    expected = r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"
-    with pytest.raises(MvtopError, match=expected):
-        list(RayEngine("auto").run(print, [("x",)]))
