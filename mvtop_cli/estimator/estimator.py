@@ -63,6 +63,9 @@ class FrameEstimate:
     sensor_iou: dict[str, float] = field(default_factory=dict)
     # the sensor consistency watch after this frame (``Estimator.restore_consistency`` on resume)
     consistency: dict = field(default_factory=dict)
+    # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
+    # keeps them (``mvtop estimate --debug-images``: ``pipelines.debug_images.frame_masks``)
+    debug_masks: tuple = field(default=(), repr=False)
 
 
 class Estimator:
