@@ -15,8 +15,10 @@ cost disk, not RAM, and a resumed run still has the images of the frames done be
   ``mono8`` of the sensor's full image size, 255 on the mask and 0 elsewhere. The ROI window
   is pasted back at its place (``Roi.paste``: each ROI pixel fills the ``k x k`` image pixels
   it stands for when the ROI is downsampled ``k``-fold); pixels outside the window are 0
-  (the observed mask outside the window enters the IoU only as an area, the rendered mask is
-  not drawn there). The IoU of the two images is the IoU the sensor scored at the estimate;
+  (a tactile mask can reach past its window, which covers only the part of the image the object
+  can touch: that part of the observed mask enters the IoU as an area and is not drawn). The
+  IoU of the two images, with that area added to the union, is the IoU the sensor scored at
+  the estimate;
 - ``/mvtop/debug/<sensor>/camera_info``: the sensor's intrinsics, so an image panel can draw
   the 3D scene (the CAD model at the estimate) over the masks;
 - ``/tf``: ``world -> <sensor frame>`` (the sensor's pose when its image was taken), so every
@@ -96,24 +98,17 @@ def topic(sensor: str, kind: str) -> str:
     return f"{TOPIC_PREFIX}/{re.sub(r'[^A-Za-z0-9_]', '_', sensor)}/{kind}"
 
 
-def write_debug_images(w: LogWriter, results: Iterable[FrameEstimate], world_frame: str,
-                       skip_tf: Iterable[str] = ()) -> int:
-    """The debug topics of every frame of ``results`` (see the module doc), one frame in
-    memory at a time; ``skip_tf`` names frames whose TF the track already writes (``ee``).
-    Returns the number of images written."""
+def write_debug_images(w: LogWriter, result: FrameEstimate, world_frame: str, skip_tf: Iterable[str] = ()) -> int:
+    """The debug topics of one frame's ``result`` (see the module doc; nothing when it keeps
+    no masks); ``skip_tf`` names frames whose TF the track already writes (``ee``). Returns
+    the number of images written."""
+    masks = result.debug_masks
     skip = {world_frame, *skip_tf}
-    n = 0
-    for r in results:
-        masks = getattr(r, "debug_masks", ())
-        tf = {}
-        for m in masks:
-            if m.frame_id not in skip:
-                tf[m.frame_id] = m.T_world_sensor
-        if tf:
-            w.write_tf([(world_frame, f, T) for f, T in tf.items()], r.stamp_ns)
-        for m in masks:
-            w.write_camera_info(topic(m.sensor, "camera_info"), m.camera, r.stamp_ns, m.frame_id)
-            for kind in KINDS:
-                w.write_image(topic(m.sensor, kind), m.image(kind), r.stamp_ns, m.frame_id, encoding="mono8")
-                n += 1
-    return n
+    tf = {m.frame_id: m.T_world_sensor for m in masks if m.frame_id not in skip}
+    if tf:
+        w.write_tf([(world_frame, f, T) for f, T in tf.items()], result.stamp_ns)
+    for m in masks:
+        w.write_camera_info(topic(m.sensor, "camera_info"), m.camera, result.stamp_ns, m.frame_id)
+        for kind in KINDS:
+            w.write_image(topic(m.sensor, kind), m.image(kind), result.stamp_ns, m.frame_id, encoding="mono8")
+    return 2 * len(masks)

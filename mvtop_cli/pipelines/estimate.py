@@ -139,7 +139,7 @@ def estimate(
         summary = run_summary(results, cfg, log_path, elapsed, skipped, scene.warnings)
         summary["resumed_at_frame"] = restored.frames_done
         summary["checkpoint_ms_per_frame"] = round(1e3 * ck.write_seconds / max(ck.writes, 1), 3)
-        write_track(out_dir, results, cfg, summary, debug_images=options.debug_images)
+        write_track(out_dir, results, cfg, summary)
     except KeyboardInterrupt as err:
         ck.close()
         raise EstimateInterrupted(len(results), total, ck.dir, "outputs", _signum(err)) from None

@@ -90,11 +90,10 @@ def track_csv_row(r: FrameEstimate) -> str:
                     + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)])
 
 
-def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict, *,
-                debug_images: bool = False) -> None:
+def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
     """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically;
-    with ``debug_images``, track.mcap also holds each sensor's observed and rendered masks
-    kept in the results (``debug_images``)."""
+    track.mcap also holds each sensor's observed and rendered masks of the frames whose
+    results keep them (``debug_images``)."""
     with LogWriter(out_dir / "track.mcap") as w:
         write_track_scene(w, [r.stamp_ns for r in results], np.stack([r.T_world_object for r in results]),
                           np.stack([r.T_ee_object for r in results]),
@@ -103,8 +102,7 @@ def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summar
             w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
             w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
             w.write_pose_array("/mvtop/particles", r.particles_world, r.stamp_ns, cfg.frames.world)
-        if debug_images:
-            write_debug_images(w, results, cfg.frames.world, skip_tf=(cfg.frames.ee, OBJECT_FRAME))
+            write_debug_images(w, r, cfg.frames.world, skip_tf=(cfg.frames.ee, OBJECT_FRAME))
     lines = [TRACK_CSV_HEADER] + [track_csv_row(r) for r in results]
     with atomic_output(out_dir / "track.csv", "w") as fh:
         fh.write("\n".join(lines) + "\n")
