@@ -68,13 +68,16 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     folder). With --config, check that every topic and TF frame the config needs is present."""
     from .pipelines.inspect import format_report, inspect_log
 
-    required_topics = required_frames = urdf = None
+    required_topics = required_frames = urdf = gt_topic = None
+    world = "world"
     if config_path is not None:
         from .config import load_config
 
         cfg = load_config(config_path)
         required_topics, required_frames, urdf = cfg.required_topics(), cfg.required_frames(), cfg.robot.urdf
-    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames, urdf=urdf)
+        gt_topic, world = cfg.topics.ground_truth, cfg.frames.world
+    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames, urdf=urdf,
+                         ground_truth_topic=gt_topic, world_frame=world)
     click.echo(format_report(report))
     problems = []
     if report.missing_topics:
@@ -88,6 +91,8 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     if report.summary.truncated_at is not None:
         cut_file, cut_at = report.summary.truncated_at
         problems.append(f"{cut_file.name} is truncated at byte {cut_at} (expected a complete file with its footer)")
+    if report.ground_truth is not None and not report.ground_truth.connected:
+        problems.append(report.ground_truth.problem())
     if problems:
         raise MvtopError(f"{log}: " + "; ".join(problems))
 
