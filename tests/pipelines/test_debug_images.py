@@ -174,3 +174,17 @@ def test_cli_debug_images_takes_one_log(tmp_path):
     assert proc.stderr.strip().splitlines()[-1].endswith("--debug-images works with a single LOG (run it on the log "
                                                          "whose masks you want to see)")
     assert not (tmp_path / "out").exists()
+
+
+def test_the_foxglove_layout_names_topics_of_the_track(runs):
+    """docs/foxglove-layout.json shows topics a --debug-images track of a sample log has."""
+    import json
+
+    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    named = set()
+    for panel in layout["configById"].values():
+        named |= set(panel.get("topics", {}))
+        named |= {v for k, v in panel.get("imageMode", {}).items() if k.endswith("Topic")}
+        named |= {p["value"].split(".")[0] for p in panel.get("paths", [])}
+    assert {"/mvtop/debug/front/observed", "/mvtop/debug/left/rendered", "/mvtop/debug/left/camera_info"} <= named
+    assert named <= {t for t, _s, _m in read_all(runs[1] / "track.mcap")}
