@@ -68,13 +68,16 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     folder). With --config, check that every topic and TF frame the config needs is present."""
     from .pipelines.inspect import format_report, inspect_log
 
-    required_topics = required_frames = urdf = None
+    required_topics = required_frames = urdf = gt_topic = None
+    world = "world"
     if config_path is not None:
         from .config import load_config
 
         cfg = load_config(config_path)
         required_topics, required_frames, urdf = cfg.required_topics(), cfg.required_frames(), cfg.robot.urdf
-    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames, urdf=urdf)
+        gt_topic, world = cfg.topics.ground_truth, cfg.frames.world
+    report = inspect_log(log, required_topics=required_topics, required_frames=required_frames, urdf=urdf,
+                         ground_truth_topic=gt_topic, world_frame=world)
     click.echo(format_report(report))
     problems = []
     if report.missing_topics:
@@ -88,6 +91,8 @@ def inspect_cmd(log: Path, config_path: Path | None) -> None:
     if report.summary.truncated_at is not None:
         cut_file, cut_at = report.summary.truncated_at
         problems.append(f"{cut_file.name} is truncated at byte {cut_at} (expected a complete file with its footer)")
+    if report.ground_truth is not None and not report.ground_truth.connected:
+        problems.append(report.ground_truth.problem())
     if problems:
         raise MvtopError(f"{log}: " + "; ".join(problems))
 
@@ -378,9 +383,12 @@ def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face
 @click.option("--ray", "ray_address", metavar="ADDRESS",
               help="Several logs: run them as Ray tasks: local (a Ray instance on this machine), auto (the cluster "
                    "this machine joined with `ray start`) or a cluster address HOST:PORT. Needs the ray extra.")
+@click.option("--debug-images", is_flag=True,
+              help="Also write each sensor's observed mask and the mask rendered at the estimate to track.mcap "
+                   "(/mvtop/debug/SENSOR/observed and /rendered, mono8 images; README.md, Outputs). One log only.")
 def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path, modalities: str | None,
                  particles: int | None, seed: int | None, max_frames: int | None, resume: bool,
-                 manifest: Path | None, workers: int, ray_address: str | None) -> None:
+                 manifest: Path | None, workers: int, ray_address: str | None, debug_images: bool) -> None:
     """Estimate the object's pose in every frame of LOG and write the pose track to --out.
 
     Runs the M-VTOP particle filter: object masks from every camera and tactile image,
@@ -401,6 +409,8 @@ def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path,
     from .pipelines.estimate import EstimateOptions, estimate
 
     if manifest is not None or len(log) != 1 or is_batch_input(log[0]):
+        if debug_images:
+            raise MvtopError("--debug-images works with a single LOG (run it on the log whose masks you want to see)")
         _estimate_many(log, manifest, config_path, out_dir, modalities, particles, seed, max_frames, workers,
                        ray_address)
         return
@@ -417,7 +427,8 @@ def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path,
                              f"got {modalities!r}")
     if out_dir.exists() and not out_dir.is_dir():
         raise MvtopError(f"{out_dir}: exists and is not a folder")
-    options = EstimateOptions(modalities=mods, num_particles=particles, seed=seed, max_frames=max_frames)
+    options = EstimateOptions(modalities=mods, num_particles=particles, seed=seed, max_frames=max_frames,
+                              debug_images=debug_images)
     from .pipelines.checkpoint import EstimateInterrupted
 
     again = ["mvtop", "estimate", str(log), "--config", str(config_path), "--out", str(out_dir)]
@@ -425,6 +436,8 @@ def estimate_cmd(log: tuple[Path, ...], config_path: Path | None, out_dir: Path,
                         ("--max-frames", max_frames)):
         if value is not None:
             again += [flag, str(value)]
+    if debug_images:
+        again.append("--debug-images")
     try:
         with _sigterm_interrupts(), _progress(f"estimate {log.name}", resumable=True) as update:
             summary = estimate(log, cfg, out_dir, options, progress=update, resume=resume)

@@ -66,6 +66,9 @@ class FrameEstimate:
     consistency: dict = field(default_factory=dict)
     # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
     timings: dict = field(default_factory=dict)
+    # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
+    # keeps them (``mvtop estimate --debug-images``: ``pipelines.debug_images.frame_masks``)
+    debug_masks: tuple = field(default=(), repr=False)
 
 
 class Estimator:

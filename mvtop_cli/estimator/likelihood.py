@@ -241,6 +241,23 @@ class Likelihood:
             )
         return iou_t, iou_v
 
+    def rendered_masks(self, T_ee_object: np.ndarray) -> dict[str, np.ndarray]:
+        """Per observed sensor, the mask (h, w) bool rendered at one pose (4, 4) in its ROI,
+        as ``ious`` renders it (tactile: the gel contact; cameras: the silhouette behind the
+        occluders): the mask each observed mask is compared with."""
+        obs, frame, renderer = self.observation, self.frame, self.scene.renderer
+        out = {}
+        for n in obs.sensors:
+            T = frame.T_sensor_object(n, np.asarray(T_ee_object)[None])
+            if n in obs.tactile:
+                m = renderer.render_masks(OBJECT_ID, T, frame.tactile[n].camera, obs.rois[n], mode="tactile",
+                                          gel_distance_m=self.gel_distance_m[n],
+                                          penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m)
+            else:
+                m = renderer.render_masks(OBJECT_ID, T, frame.cameras[n].camera, obs.rois[n], obs.occluders[n])
+            out[n] = np.asarray(m[0], dtype=bool)
+        return out
+
     def sensor_ious(self, T_ee_object: np.ndarray) -> dict[str, float]:
         """Per observed sensor, the IoU of its mask with the mask rendered at one pose (4, 4)."""
         iou_t, iou_v = self.ious(T_ee_object[None])

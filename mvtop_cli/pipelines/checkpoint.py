@@ -8,7 +8,8 @@ A run keeps its checkpoint in ``OUT/.mvtop-checkpoint/``:
 * ``state.npz``, rewritten atomically after every frame: the particle set ``T_ee_object``
   (N, 4, 4) with its log-weights (N,), the random generator's state, the number of frames
   done, the journal's length at that frame, the run time so far [s] and the fingerprint of
-  the run (log, resolved config, mesh files, mvtop version).
+  the run (log, resolved config, mesh files, mvtop version, and the options that change the
+  outputs: ``--debug-images``).
 
 Resuming restores the particles, the generator state and what the last frame's record
 carries over (the sensor consistency watch), replays the log up to there (frame grouping and
@@ -153,7 +154,8 @@ def _files(entries: Any) -> str:
 def describe_mismatch(saved: dict, current: dict) -> str | None:
     """One phrase naming what differs between two fingerprints (None when they match), e.g.
     ``config key filter.seed differs (0 in the checkpoint, 3 now)``."""
-    for part, what in (("log", "log"), ("config", "config key "), ("files", "content of "), ("mvtop", "mvtop version")):
+    for part, what in (("log", "log"), ("config", "config key "), ("files", "content of "), ("mvtop", "mvtop version"),
+                       ("options", "option ")):
         diff = _first_difference(saved.get(part), current.get(part), "")
         if diff is None:
             continue

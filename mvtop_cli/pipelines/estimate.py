@@ -21,6 +21,7 @@ from ..io.frames import FrameReader, LogTopics, SensorTopics
 from ..io.mcap_reader import McapLog
 from ..records import Frame
 from .checkpoint import Checkpoint, EstimateInterrupted, Restored, fingerprint
+from .debug_images import frame_masks
 from .track import run_summary, stage_timing, write_track
 
 
@@ -32,6 +33,7 @@ class EstimateOptions:
     num_particles: int | None = None
     seed: int | None = None
     max_frames: int | None = None
+    debug_images: bool = False  # each sensor's observed and rendered masks in track.mcap (debug_images)
 
 
 def sensor_topics(cfg: Config) -> list[SensorTopics]:
@@ -82,7 +84,9 @@ def estimate(
     ``checkpoint``) and its result kept there, not in memory. ``resume`` continues from that
     checkpoint's last frame (the outputs are those of an uninterrupted run with the same seed);
     without it an existing checkpoint is discarded. The checkpoint is removed once the outputs
-    are written, and when a fresh run fails (a resumed run keeps it). Ctrl-C or
+    are written, and when a fresh run fails (a resumed run keeps it). With
+    ``options.debug_images`` each frame's observed and rendered masks are journaled with its
+    result and written to track.mcap (``debug_images``). Ctrl-C or
     ``checkpoint.Terminated`` (SIGTERM) raise ``checkpoint.EstimateInterrupted`` saying how
     many frames are checkpointed.
     """
@@ -91,7 +95,7 @@ def estimate(
     sensors = sensor_topics(cfg)
     if not sensors and "contact" not in cfg.modalities:
         raise EstimationError("no sensor is enabled: check modalities and sensors in the config")
-    fp = fingerprint(log_path, cfg)
+    fp = {**fingerprint(log_path, cfg), "options": {"debug_images": bool(options.debug_images)}}
     # A resumed run checks its checkpoint first (missing, or another run's: one line at once);
     # a fresh run starts one once its inputs have loaded, and removes it on an error.
     ck, restored = Checkpoint.start(out_dir, fp, resume=True) if resume else (None, None)
@@ -108,7 +112,8 @@ def estimate(
                 created = not out_dir.exists()
                 out_dir.mkdir(parents=True, exist_ok=True)
                 ck, restored = Checkpoint.start(out_dir, fp, resume=False)
-            _run_frames(reader, estimator, ck, restored, options.max_frames, total, progress, t_start)
+            _run_frames(reader, estimator, ck, restored, options.max_frames, total, progress, t_start,
+                        options.debug_images)
             skipped = list(reader.skipped)
             if not ck.frames_done:
                 raise EstimationError(f"{log_path}: no frame with the configured sensors could be read")
@@ -146,11 +151,11 @@ def estimate(
 
 def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, restored: Restored,
                 max_frames: int | None, total: int, progress: Callable[[int, int], None] | None,
-                t_start: float) -> None:
+                t_start: float, debug_images: bool = False) -> None:
     """The frame loop: replay the ``restored.frames_done`` frames a resumed run has done
     (the reader's grouping and skip list, and the tactile reference images, come out as in
     the first run), restore the particles and the generator, then step the filter and
-    checkpoint each further frame."""
+    checkpoint each further frame (with ``debug_images``, with its sensors' masks)."""
     done = restored.frames_done
     if restored.particles is not None:
         estimator.particles = restored.particles
@@ -174,6 +179,9 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
             read_s = time.perf_counter() - t_read
             result = estimator.step(frame)
             result.timings["read_s"] = read_s
+            if debug_images and result.sensors:
+                ids = {n: reader.sensor_frame(n) or f"{n}_sensor" for n in result.sensors}
+                result = replace(result, debug_masks=frame_masks(estimator, frame, result, ids))
             ck.record(result, estimator.particles, estimator.rng, restored.elapsed_s + time.perf_counter() - t_start)
             if progress is not None:
                 progress(n + 1, total)

@@ -21,7 +21,9 @@ class InspectReport:
     that exist but carry no message; ``tf_frames`` every frame named on a TFMessage
     topic (None when TF was not scanned); ``urdf_frames`` the links of the config's URDF
     (put into TF from the joint states when estimating); ``missing_frames`` required
-    frames in neither.
+    frames in neither. ``ground_truth``: with a ground-truth topic to check, its topic, the
+    frame of its PoseStamped messages, the world frame and whether TF (with the URDF's links)
+    connects the two (None: no such topic, or not a PoseStamped topic with messages).
     """
 
     summary: LogSummary
@@ -34,6 +36,7 @@ class InspectReport:
     missing_frames: tuple[str, ...]
     timing: dict[str, dict] = field(default_factory=dict)
     urdf_frames: tuple[str, ...] = ()
+    ground_truth: GroundTruthFrame | None = None
 
     @property
     def ok(self) -> bool:
@@ -44,20 +47,62 @@ class InspectReport:
             or self.empty_topics
             or self.missing_frames
             or self.summary.truncated_at is not None
+            or (self.ground_truth is not None and not self.ground_truth.connected)
         )
 
 
-def _tf_frames(log: McapLog) -> tuple[str, ...]:
-    """Every frame named by any TFMessage topic (parents and children)."""
+@dataclass(frozen=True)
+class GroundTruthFrame:
+    """The frame of a log's ground-truth poses and whether TF connects it to the world."""
+
+    topic: str
+    frame: str
+    world: str
+    connected: bool
+
+    def problem(self) -> str:
+        """One line saying what is wrong (empty when the frame connects)."""
+        if self.connected:
+            return ""
+        return (f"ground truth on {self.topic} is in frame {self.frame!r}, which TF does not connect to "
+                f"{self.world!r} (expected its poses in {self.world!r}, or a frame on a TF chain to it)")
+
+
+def _tf_edges(log: McapLog) -> set[tuple[str, str]]:
+    """Every (parent, child) pair of any TFMessage topic."""
     tf_topics = [t.name for t in log.summary().topics if rm.normalize_type(t.type) == rm.TF_MESSAGE and t.message_count]
-    frames: set[str] = set()
-    if not tf_topics:
-        return ()
-    for m in log.messages(tf_topics):
+    edges: set[tuple[str, str]] = set()
+    for m in log.messages(tf_topics) if tf_topics else ():
         for tr in m.msg.transforms:
-            frames.add(str(tr.header.frame_id).lstrip("/"))
-            frames.add(str(tr.child_frame_id).lstrip("/"))
-    return tuple(sorted(frames))
+            edges.add((str(tr.header.frame_id).lstrip("/"), str(tr.child_frame_id).lstrip("/")))
+    return edges
+
+
+def _connected(edges: set[tuple[str, str]], a: str, b: str) -> bool:
+    """Whether a chain of transforms (either direction) joins frames ``a`` and ``b``."""
+    links: dict[str, set[str]] = {}
+    for p, c in edges:
+        links.setdefault(p, set()).add(c)
+        links.setdefault(c, set()).add(p)
+    seen, todo = {a}, [a]
+    while todo:
+        for f in links.get(todo.pop(), ()):
+            if f not in seen:
+                seen.add(f)
+                todo.append(f)
+    return b in seen
+
+
+def _ground_truth_frame(log: McapLog, topic: str | None) -> str | None:
+    """The frame_id of the first PoseStamped on ``topic`` (None without one)."""
+    summary = log.summary()
+    if topic is None or not summary.has_topic(topic) or not summary.topic(topic).message_count:
+        return None
+    if rm.normalize_type(summary.topic(topic).type) != rm.normalize_type(rm.POSE_STAMPED):
+        return None
+    for m in log.messages([topic]):
+        return str(m.msg.header.frame_id).lstrip("/")
+    return None
 
 
 def inspect_log(
@@ -67,6 +112,8 @@ def inspect_log(
     *,
     scan_tf: bool | None = None,
     urdf: str | Path | None = None,
+    ground_truth_topic: str | None = None,
+    world_frame: str = "world",
 ) -> InspectReport:
     """Summarise the log at ``path`` (an .mcap file or a rosbag2 folder) and check it against
     ``required_topics`` (topic -> ``pkg/msg/Name``) and ``required_frames`` (TF frame names).
@@ -76,11 +123,18 @@ def inspect_log(
     is read up to its last complete record and flagged rather than rejected; other
     unreadable logs raise LogError. With ``urdf`` (a robot model whose links come from
     the joint states), its links count as present frames.
+
+    With ``ground_truth_topic`` (a PoseStamped topic; ignored when the log lacks it), the
+    frame of its messages must be ``world_frame`` or joined to it by a chain of TF
+    transforms (and the URDF's links), as ``estimate`` and ``eval`` convert it: checked on
+    the TF tree of the whole log, not stamp by stamp.
     """
     urdf_frames: tuple[str, ...] = ()
+    urdf_edges: set[tuple[str, str]] = set()
     if urdf is not None:
         kin = UrdfKinematics(urdf)
         urdf_frames = tuple(sorted({kin.root, *kin.links}))
+        urdf_edges = {(kin.root, link) for link in kin.links}  # a URDF is one tree
     required_topics = dict(required_topics or {})
     required_frames = list(required_frames or [])
     with McapLog(path, allow_truncated=True) as log:
@@ -95,14 +149,20 @@ def inspect_log(
                 wrong.append((topic, rm.normalize_type(expected), info.type))
             elif info.message_count == 0:
                 empty.append(topic)
+        gt_frame = _ground_truth_frame(log, ground_truth_topic)
         do_tf = bool(required_frames) if scan_tf is None else scan_tf
-        frames = _tf_frames(log) if do_tf else None
+        edges = _tf_edges(log) if do_tf or (gt_frame is not None and gt_frame != world_frame) else None
+        frames = tuple(sorted({f for e in edges for f in e})) if do_tf and edges is not None else None
         image_topics = [
             t for t, e in required_topics.items()
             if rm.normalize_type(e or "") in (rm.IMAGE, rm.COMPRESSED_IMAGE) and t not in missing and t not in empty
             and not any(t == w[0] for w in wrong)
         ]
         timing = _image_timing(log, image_topics) if image_topics else {}
+    ground_truth = None
+    if gt_frame is not None:
+        ok = gt_frame == world_frame or _connected((edges or set()) | urdf_edges, gt_frame, world_frame)
+        ground_truth = GroundTruthFrame(str(ground_truth_topic), gt_frame, world_frame, ok)
     known = set(frames or ()) | set(urdf_frames)
     missing_frames = tuple(
         f for f in required_frames if (frames is None and not urdf_frames) or f.lstrip("/") not in known
@@ -118,6 +178,7 @@ def inspect_log(
         missing_frames=missing_frames,
         timing=timing,
         urdf_frames=urdf_frames,
+        ground_truth=ground_truth,
     )
 
 
@@ -212,6 +273,11 @@ def format_report(report: InspectReport) -> str:
         lines += ["", f"TF frames:   {', '.join(report.tf_frames) or '(none)'}"]
     if report.urdf_frames:
         lines += [f"URDF links:  {', '.join(report.urdf_frames)} (from the joint states)"]
+    gt = report.ground_truth
+    if gt is not None:
+        how = ("" if gt.frame == gt.world else " (converted through TF)") if gt.connected else \
+            f" (NOT CONNECTED to {gt.world!r} through TF)"
+        lines += [f"ground truth: {gt.topic} in frame {gt.frame!r}{how}"]
     if report.timing:
         rows = []
         for topic, v in report.timing.items():
@@ -239,8 +305,11 @@ def format_report(report: InspectReport) -> str:
             problems.append(f"missing TF frames: {', '.join(report.missing_frames)}")
         if s.truncated_at is not None:
             problems.append("the log is truncated")
+        if gt is not None and not gt.connected:
+            problems.append(gt.problem())
         if problems:
             lines += ["PROBLEMS:"] + [f"  - {p}" for p in problems]
         else:
-            lines.append("OK: every required topic and TF frame is present.")
+            lines.append("OK: every required topic and TF frame is present."
+                         + (" The ground truth's frame connects to the world." if gt is not None else ""))
     return "\n".join(lines)

@@ -13,7 +13,8 @@ from ..filter.health import count_warnings, sensor_report, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.mcap_writer import LogWriter
-from ..io.track_scene import object_triangles, write_track_scene
+from ..io.track_scene import OBJECT_FRAME, object_triangles, write_track_scene
+from .debug_images import write_debug_images
 
 
 def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elapsed: float, skipped,
@@ -125,7 +126,9 @@ def track_csv_row(r: FrameEstimate) -> str:
 
 
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:
-    """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically."""
+    """track.mcap, track.csv, summary.json and config.resolved.yaml, each written atomically;
+    track.mcap also holds each sensor's observed and rendered masks of the frames whose
+    results keep them (``debug_images``)."""
     with LogWriter(out_dir / "track.mcap") as w:
         write_track_scene(w, [r.stamp_ns for r in results], np.stack([r.T_world_object for r in results]),
                           np.stack([r.T_ee_object for r in results]),
@@ -134,6 +137,7 @@ def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summar
             w.write_pose("/mvtop/object_pose", r.T_world_object, r.stamp_ns, cfg.frames.world)
             w.write_pose("/mvtop/object_pose_ee", r.T_ee_object, r.stamp_ns, cfg.frames.ee)
             w.write_pose_array("/mvtop/particles", r.particles_world, r.stamp_ns, cfg.frames.world)
+            write_debug_images(w, r, cfg.frames.world, skip_tf=(cfg.frames.ee, OBJECT_FRAME))
     lines = [TRACK_CSV_HEADER] + [track_csv_row(r) for r in results]
     with atomic_output(out_dir / "track.csv", "w") as fh:
         fh.write("\n".join(lines) + "\n")

@@ -202,3 +202,32 @@ def test_progress_of_a_short_job_without_a_terminal_prints_nothing(monkeypatch, 
         update(15, 30)
         update(30, 30)
     assert capsys.readouterr().err == ""
+
+
+def test_inspect_says_in_one_line_when_the_ground_truth_frame_does_not_connect(tmp_path):
+    import numpy as np
+
+    from mvtop_cli.geometry.camera import PinholeCamera
+    from mvtop_cli.io.mcap_writer import LogWriter
+
+    raw = yaml.safe_load(CONFIG.read_text())
+    raw["object"]["mesh"] = str(CONFIG.parent / raw["object"]["mesh"])
+    raw["environment"] = []
+    raw["modalities"] = ["vision"]
+    raw["sensors"] = {"cameras": [{"name": "front", "image_topic": "/cam/image", "info_topic": "/cam/info",
+                                   "frame": "front_optical"}], "tactile": []}
+    raw.setdefault("topics", {})["ground_truth"] = "/gt"
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    log = tmp_path / "log.mcap"
+    with LogWriter(log) as w:
+        w.write_tf([("world", "front_optical", np.eye(4))], 10**9, static=True)
+        for i in range(3):
+            t = 10**9 + i * 10**8
+            w.write_tf([("world", "ee", np.eye(4))], t)
+            w.write_image("/cam/image", np.zeros((6, 8, 3), np.uint8), t, "front_optical")
+            w.write_camera_info("/cam/info", PinholeCamera.from_fov(8, 6, 10.0), t, "front_optical")
+            w.write_pose("/gt", np.eye(4), t, "tray")
+    line = one_error_line(run("inspect", str(log), "--config", str(cfg)))
+    assert line == (f"mvtop: error: {log}: ground truth on /gt is in frame 'tray', which TF does not connect to "
+                    "'world' (expected its poses in 'world', or a frame on a TF chain to it)")

@@ -141,3 +141,42 @@ def test_inspect_reports_dropped_frames_and_rate_mismatch(tmp_path):
     assert side["dropped"] == 0 and side["rate_mismatch"] and not front["rate_mismatch"]
     text = format_report(report)
     assert "2 dropped (gap up to 0.300 s)" in text and "slower than the fastest sensor" in text
+
+
+def gt_log(path: Path, gt_frame: str) -> Path:
+    """A log with world -> ee on /tf, world -> front_optical on /tf_static, a camera, contact
+    and ground truth on /gt in ``gt_frame``."""
+    cam = PinholeCamera.from_fov(8, 6, 10.0)
+    with LogWriter(path) as w:
+        w.write_tf([("world", "front_optical", np.eye(4))], T0, static=True)
+        for i in range(3):
+            t = T0 + i * 100 * MS
+            w.write_tf([("world", "ee", np.eye(4))], t)
+            w.write_bool("/contact", False, t)
+            w.write_image("/cameras/front/image", np.zeros((6, 8, 3), np.uint8), t, "front_optical")
+            w.write_camera_info("/cameras/front/camera_info", cam, t, "front_optical")
+            w.write_pose("/gt", np.eye(4), t, gt_frame)
+    return path
+
+
+@pytest.mark.parametrize("frame", ["world", "ee", "front_optical"])
+def test_ground_truth_in_a_frame_tf_connects_passes(tmp_path, frame):
+    report = inspect_log(gt_log(tmp_path / "gt.mcap", frame), REQUIRED, ["world", "ee"], ground_truth_topic="/gt")
+    assert report.ok and report.ground_truth.frame == frame and report.ground_truth.connected
+    text = format_report(report)
+    note = "" if frame == "world" else " (converted through TF)"
+    assert f"ground truth: /gt in frame {frame!r}{note}" in text.splitlines()
+    assert "OK: every required topic and TF frame is present. The ground truth's frame connects to the world." in text
+
+
+def test_ground_truth_in_a_frame_tf_does_not_connect_is_a_problem(tmp_path):
+    path = gt_log(tmp_path / "gt.mcap", "tray")
+    report = inspect_log(path, REQUIRED, ["world", "ee"], ground_truth_topic="/gt")
+    assert not report.ok and not report.ground_truth.connected
+    text = format_report(report)
+    assert "ground truth: /gt in frame 'tray' (NOT CONNECTED to 'world' through TF)" in text.splitlines()
+    assert ("  - ground truth on /gt is in frame 'tray', which TF does not connect to 'world' (expected its poses "
+            "in 'world', or a frame on a TF chain to it)") in text.splitlines()
+    # without requirements TF is scanned only for the ground truth; a missing topic is no problem here
+    assert not inspect_log(path, ground_truth_topic="/gt").ground_truth.connected
+    assert inspect_log(path, ground_truth_topic="/missing").ground_truth is None
