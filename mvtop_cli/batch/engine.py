@@ -195,8 +195,9 @@ class RayEngine:
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR,
                                   "configure_logging": True}
         try:
-            if self.address == "local":
-                ray.init(num_cpus=self.num_cpus or os.cpu_count(), **kwargs)
+            if self.address == "local":  # workers at normal priority, as --workers' processes (Ray's default: 15)
+                with _environment({"RAY_worker_niceness": "0"}):
+                    ray.init(num_cpus=self.num_cpus or os.cpu_count(), **kwargs)
             else:
                 ray.init(address=self.address, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as err:

@@ -17,6 +17,7 @@ import csv
 import glob
 import hashlib
 import json
+import os
 import shlex
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -170,8 +171,8 @@ def jobs_from_manifest(manifest: Path, config: Path | None, out: Path, defaults:
             raise MvtopError(f"{where}: unknown column {unknown[0]!r} (expected {', '.join(MANIFEST_COLUMNS)})")
         if not row.get("log"):
             raise MvtopError(f"{where}: no log (expected a log path in the 'log' column)")
-        log = base / str(row["log"])
-        cfg = base / str(row["config"]) if row.get("config") not in (None, "") else config
+        log = Path(os.path.normpath(base / str(row["log"])))
+        cfg = Path(os.path.normpath(base / str(row["config"]))) if row.get("config") not in (None, "") else config
         if cfg is None:
             raise MvtopError(f"{where}: no config (expected a 'config' column or --config CFG)")
         opts = dict(defaults)
