@@ -49,9 +49,10 @@ def test_inspect_lists_the_mask_topics_as_required(masked_log):
     log, cfg = masked_log
     proc = run("inspect", str(log), "--config", str(cfg))
     assert proc.returncode == 0, proc.stderr
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("/cameras/") and "/mask" in ln]
-    assert len(lines) == 2 and all(ln.split()[1] == "sensor_msgs/msg/Image" and ln.endswith("required")
-                                   for ln in lines)
+    topics = [ln.split() for ln in proc.stdout.splitlines() if ln.startswith("/cameras/") and "/mask" in ln]
+    listed = {t[0]: t for t in topics if len(t) > 2 and t[1].startswith("sensor_msgs/")}  # the topic table
+    assert sorted(listed) == ["/cameras/front/mask", "/cameras/side/mask"]
+    assert all(t[1] == "sensor_msgs/msg/Image" and t[-1] == "required" for t in listed.values())
 
 
 def test_a_missing_mask_topic_is_one_error_line(masked_log, tmp_path):
