@@ -640,7 +640,7 @@ class FrameReader:
             )
             (cameras if s.modality == "camera" else tactile)[s.name] = img
         if not cameras and not tactile:
-            self.skipped.append((stamp, "no sensor of the frame has TF at its time"))
+            self.skipped.append((stamp, "no sensor of the frame is usable (TF or recorded mask missing)"))
             return None
         contact = self._contact.latest(stamp) if (self._has_contact or self._has_wrench) else None
         return Frame(
