@@ -233,6 +233,20 @@ def _check_output_path(out: Path, suffix: str | None = None) -> None:
                    "(within the config's default sync_tolerance_s of 20 ms).")
 @click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
               help="MCAP chunk compression.")
+@click.option("--mask-topics", type=click.Choice(["raw", "png"]), default=None,
+              help="Also record each camera's true object mask, as an external segmenter would publish it: raw "
+                   "sensor_msgs/Image mono8 on /cameras/NAME/mask, or png on /cameras/NAME/mask/compressed (255 = "
+                   "object); --write-config then reads them (masking.camera.backend: topic).")
+@click.option("--mask-error-px", type=click.IntRange(0, 50), default=0, show_default=True,
+              help="Degrade the recorded masks: grow or shrink each by a random 0 to this many pixels.")
+@click.option("--scene", type=click.Choice(["default", "hard"]), default="default", show_default=True,
+              help="hard: every option below on, and --exposure-jitter 0.1.")
+@click.option("--shadows", is_flag=True, help="A key light that casts shadows; dim ambient light leaves faces dark.")
+@click.option("--glossy", is_flag=True, help="Polished plastic object with specular highlights.")
+@click.option("--clutter", is_flag=True, help="Textured table and board, boxes and cylinders around the board.")
+@click.option("--light-change", type=click.FloatRange(0, 1), default=0.0, show_default=True,
+              help="Lighting that changes between frames: the key light turns by about 30x this [deg] and the "
+                   "lights dim or brighten by exp(N(0, this)).")
 @click.option("--write-config", type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the YAML config that pairs with the log, the meshes in meshes/ beside it and, with "
                    "--kinematics joint-states, the robot's URDF beside it.")
@@ -241,7 +255,8 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
                  slip_mm,
                  slip_deg, occluders, exposure_jitter, low_contrast, object_color, distortion, noise, resolution,
                  image_format, tactile_format,
-                 jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, write_config,
+                 jpeg_quality, kinematics, camera_every, drop_fraction, stamp_jitter_ms, compression, mask_topics,
+                 mask_error_px, scene, shadows, glossy, clutter, light_change, write_config,
                  list_objects) -> None:
     """Simulate a visuo-tactile insertion episode and write it as a ROS 2 MCAP log with ground truth.
 
@@ -251,7 +266,9 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
 
     To check a setup like yours, record the way it does: --image-format raw, --distortion,
     --kinematics tf-chain or joint-states, --camera-every, --drop-fraction, --stamp-jitter-ms
-    (docs/recording.md); --write-config writes the config that reads such a log.
+    (docs/recording.md); --write-config writes the config that reads such a log. --scene hard
+    (or --shadows, --glossy, --clutter, --light-change) makes harder camera images; --mask-topics
+    records object masks as a segmentation node on the robot would.
     """
     from .sim.objects import get_object
     from .sim.objects import list_objects as names
@@ -287,7 +304,7 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
         if len(dist) != 5:
             raise MvtopError(f"--distortion: expected five numbers k1,k2,p1,p2,k3, got {distortion!r}")
     _check_output_path(out, ".mcap")
-    from .pipelines.simulate import SimulateOptions, simulate, write_scene_config
+    from .pipelines.simulate import SimulateOptions, scene_options, simulate, write_scene_config
     from .sim.episode import EpisodeOptions
     from .sim.timing import SensorTiming
 
@@ -307,7 +324,10 @@ def simulate_cmd(object_name, object_file, seed, out, frames, grasp_translation_
         occluders=occluders, image_format=image_format, tactile_format=tactile_format, jpeg_quality=jpeg_quality,
         compression=compression, kinematics=kinematics,
         timing=SensorTiming(camera_every=camera_every, drop_fraction=drop_fraction, jitter_s=stamp_jitter_ms / 1000.0),
+        mask_topics=mask_topics is not None, mask_format=mask_topics or "raw", mask_error_px=mask_error_px,
+        shadows=shadows, glossy=glossy, clutter=clutter, light_change=light_change,
     )
+    options = scene_options(options, scene)
     with _progress(f"simulate {getattr(object_name, 'name', object_name)}") as update:
         summary = simulate(object_name, seed, out, options, progress=update)
     click.echo(f"wrote {summary.path}: {summary.frames} frames ({summary.contact_frames} in contact), "
@@ -756,6 +776,9 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
+@click.option("--scene", type=click.Choice(["default", "hard"]), default="default", show_default=True,
+              help="Simulated camera scene: hard adds shadows and dark faces, glossy plastic, a cluttered textured "
+                   "background and lighting that changes between frames (mvtop simulate --scene hard).")
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -767,7 +790,7 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
               help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
                    "writes into --out, which must be on a file system they share.")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                           methods: str, frames: int, particles: int | None, workers: int,
+                           methods: str, frames: int, scene: str, particles: int | None, workers: int,
                            import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
@@ -794,7 +817,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles,
                               workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
-                              ray=ray_address)
+                              ray=ray_address, scene=scene)
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))

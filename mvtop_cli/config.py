@@ -147,6 +147,9 @@ class CameraSensor:
     image_topic: str
     info_topic: str
     frame: str | None = None
+    mask_topic: str | None = field(default=None, metadata={"omit_if_none": True, "doc": (
+        "with masking.camera.backend 'topic': the object masks an external segmenter publishes for this camera "
+        "(sensor_msgs/Image mono8 or mono16, or a png CompressedImage; 0 = background)")})
     weight: float | None = field(default=None, metadata=_rng(
         0.0, 1.0, doc="eq. 2 weight; default an equal part of the modality's share; 0 switches the sensor off"))
 
@@ -368,6 +371,8 @@ class Config:
         for cam in self.sensors.cameras:
             req[cam.image_topic] = _image_type(cam.image_topic)
             req[cam.info_topic] = "sensor_msgs/msg/CameraInfo"
+            if cam.mask_topic:
+                req[cam.mask_topic] = _image_type(cam.mask_topic)
         for tac in self.sensors.tactile:
             req[tac.image_topic] = _image_type(tac.image_topic)
             req[tac.info_topic] = "sensor_msgs/msg/CameraInfo"
@@ -588,9 +593,39 @@ def _check_semantics(cfg: Config) -> None:
     if cfg.contact.force_off_n >= cfg.contact.force_on_n:
         raise _Invalid("contact.force_off_n", "expected a value below contact.force_on_n (hysteresis)")
     _check_object(cfg.object)
+    _check_recorded_masks(cfg)
     f = cfg.filter
     if f.sigma_high_translation_m < f.sigma_low_translation_m:
         raise _Invalid("filter.sigma_high_translation_m", "expected a value >= filter.sigma_low_translation_m")
+
+
+TOPIC_BACKEND = "topic"  # masking.camera.backend that reads the cameras' recorded masks (mask_topic)
+
+
+def _check_recorded_masks(cfg: Config) -> None:
+    """``masking.camera.backend: topic`` reads each camera's masks from its ``mask_topic``
+    (every camera needs one); its only option is ``label``, the label id of the object
+    (default: every non-zero label)."""
+    spec = cfg.masking.camera
+    cams = cfg.sensors.cameras
+    if spec.backend != TOPIC_BACKEND:
+        for i, cam in enumerate(cams):
+            if cam.mask_topic:
+                raise _Invalid(f"sensors.cameras[{i}].mask_topic", f"recorded masks are read only with "
+                               f"masking.camera.backend: {TOPIC_BACKEND} (the backend is {spec.backend!r})")
+        return
+    for i, cam in enumerate(cams):
+        if not cam.mask_topic:
+            raise _Invalid(f"sensors.cameras[{i}].mask_topic", f"camera {cam.name!r} needs the topic of its recorded "
+                           f"object masks (masking.camera.backend is {TOPIC_BACKEND!r})")
+    unknown = sorted(set(spec.options) - {"label"})
+    if unknown:
+        raise _Invalid(f"masking.camera.options.{unknown[0]}", f"unknown option of the {TOPIC_BACKEND!r} backend "
+                                                               "(expected only 'label')")
+    label = spec.options.get("label")
+    if label is not None and (isinstance(label, bool) or not isinstance(label, int) or not 1 <= label <= 65535):
+        raise _Invalid("masking.camera.options.label", f"expected the object's label id, an integer 1-65535 "
+                                                       f"(or no label: every non-zero pixel), got {label!r}")
 
 
 def _check_object(obj: ObjectConfig) -> None:

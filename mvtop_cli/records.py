@@ -25,7 +25,9 @@ class SensorImage:
     effector in ``world`` at this image's own ``stamp_ns`` (sensors at different rates
     take their images at other times than the frame's stamp; the held object moves
     with the end effector, so it is placed in each image with this pose); None means
-    "at the frame's stamp".
+    "at the frame's stamp". ``mask`` is, for cameras whose config names a ``mask_topic``, the
+    object mask an external segmenter recorded for this image: (H, W) uint16 labels as
+    published (0 = background), matched to the image by stamp within the sync tolerance.
     """
 
     sensor: str
@@ -35,6 +37,7 @@ class SensorImage:
     T_world_sensor: np.ndarray
     depth: np.ndarray | None = None
     T_world_ee: np.ndarray | None = None
+    mask: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -139,3 +139,43 @@ def test_pose_as_quaternion_equals_the_same_rotation_as_rpy(tmp_path):
     data["grasp_prior"]["pose"] = {"quat_xyzw": [0, 0, 0.5, 0.5]}
     with pytest.raises(ConfigError, match=r"grasp_prior\.pose: quat_xyzw: expected a unit quaternion"):
         parse_config(data, tmp_path / "q.yaml")
+
+
+# --- recorded masks (masking.camera.backend: topic) -------------------------------------------
+
+TOPIC_MASKS = {"masking.camera.backend": "topic"}
+
+
+def _with_mask_topic(cfg_dir: Path, extra: dict) -> Path:
+    path = write(cfg_dir, BASE, extra)
+    data = yaml.safe_load(path.read_text())
+    data["sensors"]["cameras"][0]["mask_topic"] = "/cameras/front/mask"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_topic_backend_reads_each_cameras_mask_topic(cfg_dir):
+    cfg = load_config(_with_mask_topic(cfg_dir, {**TOPIC_MASKS, "masking.camera.options": {"label": 3}}))
+    assert cfg.sensors.cameras[0].mask_topic == "/cameras/front/mask"
+    assert cfg.required_topics()["/cameras/front/mask"] == "sensor_msgs/msg/Image"
+    assert cfg.masking.camera.options == {"label": 3}
+
+
+def test_topic_backend_needs_a_mask_topic(cfg_dir):
+    with pytest.raises(ConfigError, match=r"c\.yaml: sensors\.cameras\[0\]\.mask_topic: camera 'front' needs the "
+                                          r"topic of its recorded object masks"):
+        load_config(write(cfg_dir, BASE, TOPIC_MASKS))
+
+
+def test_mask_topic_without_the_topic_backend_is_rejected(cfg_dir):
+    with pytest.raises(ConfigError, match=r"sensors\.cameras\[0\]\.mask_topic: recorded masks are read only with "
+                                          r"masking\.camera\.backend: topic \(the backend is 'classical'\)"):
+        load_config(_with_mask_topic(cfg_dir, {}))
+
+
+@pytest.mark.parametrize("options, key", [({"label": 0}, "label"), ({"label": "3"}, "label"),
+                                          ({"label": True}, "label"), ({"labels": 3}, "labels")])
+def test_topic_backend_options_are_checked_at_load(cfg_dir, options, key):
+    with pytest.raises(ConfigError, match=rf"c\.yaml: masking\.camera\.options\.{key}: ") as info:
+        load_config(_with_mask_topic(cfg_dir, {**TOPIC_MASKS, "masking.camera.options": options}))
+    assert "\n" not in str(info.value)

@@ -69,6 +69,7 @@ class AccuracyOptions:
     import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
     summary_only: bool = False  # tables over the finished runs; no run is made
     ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
+    scene: str = "default"  # simulated camera scene: default, or hard (pipelines.simulate.HARD_SCENE)
 
 
 RESULTS_FILE = "results.jsonl.gz"
@@ -89,14 +90,15 @@ def code_fingerprint(package: Path | None = None) -> str:
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
-             source: str | None = None) -> dict:
+             source: str | None = None, scene_name: str = "default") -> dict:
     """Simulate (once per object and seed, shared by the methods), estimate, evaluate. ``source``:
-    the object file of ``obj`` (default: the built-in object of that name)."""
+    the object file of ``obj`` (default: the built-in object of that name); ``scene_name`` the
+    simulated camera scene (``default`` or ``hard``)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.estimate import EstimateOptions, estimate
     from ..pipelines.evaluate import evaluate
-    from ..pipelines.simulate import SimulateOptions, simulate, write_scene_config
+    from ..pipelines.simulate import SimulateOptions, scene_options, simulate, write_scene_config
     from ..sim.episode import EpisodeOptions
 
     run = Path(run_dir)
@@ -107,7 +109,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     simulate_seconds = 0.0
     if not log.exists():
         ts = time.perf_counter()
-        simulate(source or obj, seed, log, SimulateOptions(episode=EpisodeOptions(frames=frames)))
+        simulate(source or obj, seed, log,
+                 scene_options(SimulateOptions(episode=EpisodeOptions(frames=frames)), scene_name))
         simulate_seconds = time.perf_counter() - ts
     if not cfg_path.exists():
         write_scene_config(source or obj, cfg_path)
@@ -126,7 +129,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                            "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
-                           "code": code_fingerprint(), **extra}
+                           "code": code_fingerprint(), **({"scene": scene_name} if scene_name != "default" else {}),
+                           **extra}
     with atomic_output(run / "result.json", "w") as fh:
         json.dump(report, fh)
     return report
@@ -164,6 +168,10 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         result = job[3] / "result.json"
         if result.is_file():
             reports[job[:3]] = json.loads(result.read_text())
+            made_in = reports[job[:3]].get("benchmark", {}).get("scene", "default")
+            if made_in != options.scene:
+                raise MvtopError(f"{out_dir}: holds runs of the {made_in!r} scene, not {options.scene!r} "
+                                 "(expected one scene per benchmark folder: give another --out)")
         elif not options.summary_only:
             todo.append(job)
     done = len(reports)
@@ -177,7 +185,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
     files = dict(options.object_files)
-    args = [(o, s, m, str(d), options.frames, options.particles, engine.threads, files.get(o)) for o, s, m, d in todo]
+    args = [(o, s, m, str(d), options.frames, options.particles, engine.threads, files.get(o), options.scene)
+            for o, s, m, d in todo]
     for outcome in engine.run(_run_one, args):
         if outcome.error is not None:
             raise outcome.error
@@ -189,6 +198,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
     if not options.summary_only:
         _append_invocation(out_dir, options, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
+               "scene": options.scene,
                "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
                "imported_this_run": imported, "totals": _totals(out_dir, reports), "table": {}}
     for method in options.methods:

@@ -7,7 +7,8 @@ the environment meshes that occlude each camera, and the observed masks (Algorit
 cameras, choosing among the backend's proposals with the belief's best particles).
 
 Cameras use ``masking.camera`` (``classical`` by default, or ``sam_onnx`` / ``instance_onnx``):
-zero-shot proposals for Algorithm 1-2 and the promptable mode. Tactile sensors use the
+zero-shot proposals for Algorithm 1-2 and the promptable mode; with ``topic`` the masks an
+external segmenter recorded in the log are the observation (cropped to the ROI). Tactile sensors use the
 indentation depth topic when the log has one (undeformed pixels removed before binarising),
 else ``masking.tactile`` (``difference``: the change from a no-contact reference frame, given
 as ``options.reference_image`` or taken as the first tactile image of the log).
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import BackendConfig, Config
+from ..config import TOPIC_BACKEND, BackendConfig, Config
 from ..errors import ConfigError
 from ..filter.particles import ParticleSet
 from ..masking.base import MaskContext, get_backend
@@ -58,6 +59,7 @@ class Observer:
     def __init__(self, cfg: Config):
         self.cfg = cfg
         self.camera = make_backend(cfg.masking.camera, cfg, "masking.camera")
+        self.recorded = cfg.masking.camera.backend == TOPIC_BACKEND  # masks recorded in the log
         self._tactile_spec = cfg.masking.tactile
         self._tactile = None
         self._references: dict[str, np.ndarray] = {}
@@ -74,10 +76,20 @@ class Observer:
         H, W = img.image.shape[:2]
         if min(roi_box[2], W) - max(roi_box[0], 0) < 2 or min(roi_box[3], H) - max(roi_box[1], 0) < 2:
             return []
-        return list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box)))
+        extras = {"recorded_mask": img.mask} if self.recorded and img.mask is not None else {}
+        return list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box, extras=extras)))
+
+    def recorded_mask(self, img: SensorImage) -> np.ndarray | None:
+        """The object mask (full-image bool) recorded for camera image ``img`` (``topic``
+        backend); None when the image carries no recorded mask."""
+        return None if img.mask is None else self.camera.object_mask(img.mask)
 
     def camera_prompt(self, img: SensorImage, prompt_mask: np.ndarray) -> np.ndarray:
-        """The object mask prompted by the CAD silhouette at the current estimate."""
+        """The object mask prompted by the CAD silhouette at the current estimate (the recorded
+        mask, all False without one, with the ``topic`` backend)."""
+        if self.recorded:
+            m = self.recorded_mask(img)
+            return m if m is not None else np.zeros(img.image.shape[:2], dtype=bool)
         return np.asarray(self.camera.prompt(img.image, prompt_mask), dtype=bool)
 
     def tactile_mask(self, img: SensorImage) -> np.ndarray:
@@ -116,8 +128,8 @@ class Observation:
     occluders ``(mesh_id, T_sensor_mesh)`` of each camera, the observed mask cropped to the
     ROI (``masks``) and the observed mask area outside the ROI in ROI pixels (``outside``).
     ``tactile`` and ``cameras`` name the sensors with an observed mask, in the frame's
-    order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt`` or
-    ``none`` without cameras)."""
+    order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt``,
+    ``recorded`` from the log's mask topics, or ``none`` without cameras)."""
 
     rois: dict[str, Roi]
     occluders: dict[str, list]
@@ -175,7 +187,13 @@ class ObservationModel:
             full = self.observer.tactile_mask(img)
             masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
         mask_mode = "none"
-        if frame.cameras:
+        if frame.cameras and self.observer.recorded:
+            mask_mode = "recorded"
+            for name, img in frame.cameras.items():
+                full = self.observer.recorded_mask(img)
+                if full is not None:
+                    masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
+        elif frame.cameras:
             if converged:
                 cam_masks, mask_mode = self.prompted_masks(frame, rois, occluders, belief.mean()), "prompt"
             else:
@@ -195,7 +213,11 @@ class ObservationModel:
         """Observed masks (ROI crops) of ``cameras`` by Algorithm 1-2: each camera's
         proposals from the backend plus the GrabCut proposal seeded by the candidates' weighted
         silhouettes, chosen jointly by how well the candidate poses ``T_ee_object`` (P, 4, 4)
-        with ``weights`` (P,) explain them. A camera whose proposals all fail is left out."""
+        with ``weights`` (P,) explain them. A camera whose proposals all fail is left out.
+        With masks recorded in the log (``topic``) these are the observed masks."""
+        if self.observer.recorded:
+            full = {name: self.observer.recorded_mask(img) for name, img in cameras.items()}
+            return {name: rois[name].crop(m) for name, m in full.items() if m is not None}
         proposals, rendered = {}, {}
         for name, img in cameras.items():
             roi = rois[name]

@@ -7,7 +7,8 @@ Reading is two passes. Pass 1 reads the small topics in one go (TF, contact, joi
 states, ground truth, camera infos) into compact arrays. Pass 2 streams the image
 topics in log-time order and groups them: images (and depth maps) whose stamps (header
 stamps; the log time when a stamp is zero) all lie within ``sync_tolerance_ns`` of each
-other form one frame, one image per sensor. A frame is emitted as soon as every sensor
+other form one frame, one image per sensor; a camera's recorded object mask (``mask_topic``)
+joins its image the same way, and a camera image without its mask is skipped. A frame is emitted as soon as every sensor
 has delivered, or once the stream's newest stamp is ``max_latency_ns`` past it, so only
 a bounded window of images is in memory; a frame missing a sensor is emitted with the
 sensors it has. The frame's time is the earliest image stamp in it; each sensor's pose
@@ -29,7 +30,7 @@ from ..errors import LogError
 from ..geometry.camera import PinholeCamera
 from ..records import Frame, SensorImage
 from . import ros2_msgs as rm
-from .images import decode_depth, decode_image
+from .images import decode_depth, decode_image, decode_mask
 from .mcap_reader import LogMessage, McapLog
 from .tf_buffer import PoseSeries, TfBuffer, stamp_to_ns, valid_transform
 
@@ -42,7 +43,9 @@ class SensorTopics:
 
     ``image_topic`` carries sensor_msgs Image or CompressedImage; ``info_topic`` its
     CameraInfo; ``depth_topic`` an optional 32FC1 Image [m]; ``frame_id`` the optical
-    frame in TF (default: the CameraInfo header's frame_id, else the image's).
+    frame in TF (default: the CameraInfo header's frame_id, else the image's);
+    ``mask_topic`` the object masks an external segmenter publishes for the images
+    (sensor_msgs Image mono8/mono16 or a png CompressedImage, see ``images.decode_mask``).
     """
 
     name: str
@@ -51,6 +54,7 @@ class SensorTopics:
     info_topic: str
     depth_topic: str | None = None
     frame_id: str | None = None
+    mask_topic: str | None = None
 
     def __post_init__(self) -> None:
         if self.modality not in MODALITIES:
@@ -302,6 +306,14 @@ class FrameReader:
             self._require(s.info_topic, (rm.CAMERA_INFO,), f"{s.modality} {s.name!r}")
             if s.depth_topic and self._require(s.depth_topic, (rm.IMAGE,), f"depth of {s.name!r}", optional=True):
                 self._depth_topics[s.name] = s.depth_topic
+        self._mask_topics: dict[str, str] = {}
+        for s in self.sensors:
+            if s.mask_topic:
+                self._require(s.mask_topic, (rm.IMAGE, rm.COMPRESSED_IMAGE), f"the object masks of {s.name!r}")
+                if self._summary.topic(s.mask_topic).message_count == 0:
+                    raise LogError(f"{self.log.path}: topic {s.mask_topic!r} has no messages "
+                                   f"(expected the object masks of {s.modality} {s.name!r})")
+                self._mask_topics[s.name] = s.mask_topic
 
     # --- pass 1: small topics ---------------------------------------------------------------
 
@@ -415,9 +427,10 @@ class FrameReader:
         self.tf.time_bounds(t.world_frame, t.ee_frame)
         self._loaded = True
 
-    def _undistort(self, name: str, rgb: np.ndarray, depth, camera: PinholeCamera, stamp: int):
-        """The image (and depth) undistorted to the pinhole model the renderers use, and that
-        camera without distortion; the remap tables are cached per sensor and calibration."""
+    def _undistort(self, name: str, rgb: np.ndarray, depth, camera: PinholeCamera, stamp: int, mask=None):
+        """The image (and depth) undistorted to the pinhole model the renderers use, that
+        camera without distortion, and the recorded mask undistorted (nearest label); the remap
+        tables are cached per sensor and calibration."""
         import cv2
 
         key = (name, camera.width, camera.height, camera.K.tobytes(), np.asarray(camera.distortion).tobytes())
@@ -432,10 +445,12 @@ class FrameReader:
         rgb = cv2.remap(rgb, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         if depth is not None:
             depth = cv2.remap(depth, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        if mask is not None:
+            mask = cv2.remap(mask, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
         pinhole = PinholeCamera(width=camera.width, height=camera.height, K=camera.K,
                                 distortion_model=camera.distortion_model,
                                 distortion=np.zeros_like(np.asarray(camera.distortion, dtype=np.float64)))
-        return rgb, depth, pinhole
+        return rgb, depth, pinhole, mask
 
     def _camera_at(self, sensor: str, t_ns: int) -> PinholeCamera:
         stamps, cams = self._infos[sensor]
@@ -498,6 +513,8 @@ class FrameReader:
             keys_of.setdefault(s.image_topic, []).append((s.name, "image"))
             if s.name in self._depth_topics:
                 keys_of.setdefault(self._depth_topics[s.name], []).append((s.name, "depth"))
+            if s.name in self._mask_topics:
+                keys_of.setdefault(self._mask_topics[s.name], []).append((s.name, "mask"))
         complete_keys = set(k for ks in keys_of.values() for k in ks)
 
         pending: list[_Group] = []  # sorted by .lo
@@ -561,9 +578,10 @@ class FrameReader:
 
     def _build(self, g: _Group, index: int) -> Frame | None:
         t = self.topics
+        tol_ns = int(t.sync_tolerance_ns)
         image_stamps = [st for (name, kind), (st, _m) in g.slots.items() if kind == "image"]
         if not image_stamps:
-            self.skipped.append((g.lo, "depth without an image in the same frame"))
+            self.skipped.append((g.lo, "depth or mask without an image in the same frame"))
             return None
         stamp = min(image_stamps)
         lo, hi = self.tf.time_bounds(t.world_frame, t.ee_frame)
@@ -591,18 +609,25 @@ class FrameReader:
             if not lo <= st <= hi:
                 self.skipped.append((st, f"{s.name}: no TF for {t.world_frame} -> {t.ee_frame} at this time"))
                 continue
-            depth = None
+            depth = mask = None
             dslot = g.slots.get((s.name, "depth"))
+            mslot = g.slots.get((s.name, "mask"))
+            if s.name in self._mask_topics and mslot is None:
+                self.skipped.append((st, f"{s.name}: no mask on {self._mask_topics[s.name]!r} within the sync "
+                                         f"tolerance of {tol_ns} ns"))
+                continue
             camera = self._camera_at(s.name, st)
             size = (camera.width, camera.height)
             try:
                 if dslot is not None:
                     depth = decode_depth(dslot[1].msg, dslot[1].topic, size)
+                if mslot is not None:
+                    mask = decode_mask(mslot[1].msg, mslot[1].topic, size)
                 rgb = decode_image(m.msg, m.topic, size)
             except LogError as err:  # the decoders know the topic; add the log and time
                 raise LogError(f"{self.log.path}: {err} (stamp {st} ns)") from err
             if camera.has_distortion:
-                rgb, depth, camera = self._undistort(s.name, rgb, depth, camera, st)
+                rgb, depth, camera, mask = self._undistort(s.name, rgb, depth, camera, st, mask)
             img = SensorImage(
                 sensor=s.name,
                 stamp_ns=st,
@@ -611,10 +636,11 @@ class FrameReader:
                 T_world_sensor=self.tf.lookup(t.world_frame, frame_id, st),
                 depth=depth,
                 T_world_ee=T_world_ee if st == stamp else self.tf.lookup(t.world_frame, t.ee_frame, st),
+                mask=mask,
             )
             (cameras if s.modality == "camera" else tactile)[s.name] = img
         if not cameras and not tactile:
-            self.skipped.append((stamp, "no sensor of the frame has TF at its time"))
+            self.skipped.append((stamp, "no sensor of the frame is usable (TF or recorded mask missing)"))
             return None
         contact = self._contact.latest(stamp) if (self._has_contact or self._has_wrench) else None
         return Frame(

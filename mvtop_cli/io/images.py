@@ -34,6 +34,13 @@ DEPTH_ENCODINGS: dict[str, tuple[int, str]] = {
     "16UC1": (1, "u2"),  # millimetres (REP 118)
 }
 COMPRESSED_FORMATS: tuple[str, ...] = ("png", "jpeg")
+# Recorded object masks (label images): one channel of 8 or 16 bits; lossless png when compressed.
+MASK_ENCODINGS: dict[str, tuple[int, str]] = {
+    "mono8": (1, "u1"),
+    "8UC1": (1, "u1"),
+    "mono16": (1, "u2"),
+    "16UC1": (1, "u2"),
+}
 
 
 def _cv2() -> Any:
@@ -119,6 +126,39 @@ def decode_depth(msg: Any, topic: str = "", expected_size: tuple[int, int] | Non
     if encoding == "16UC1":
         return (arr[:, :, 0].astype(np.float32) * np.float32(1e-3)).astype(np.float32)
     return arr[:, :, 0].astype(np.float32)
+
+
+def decode_mask(msg: Any, topic: str = "", expected_size: tuple[int, int] | None = None) -> np.ndarray:
+    """A recorded object mask -> (H, W) uint16 labels as published (0 = background).
+
+    A raw sensor_msgs Image with encoding mono8, 8UC1, mono16 or 16UC1, or a CompressedImage
+    in png (8 or 16 bits, one channel); jpeg is refused (lossy compression changes label
+    values along the edges). ``expected_size`` as in ``decode_image``.
+    """
+    expected = "expected a mask as sensor_msgs/Image mono8 or mono16, or a one-channel png CompressedImage"
+    if hasattr(msg, "format"):
+        fmt = str(msg.format)
+        if compressed_codec(fmt) != "png":
+            raise LogError(f"topic {topic!r}: mask in compressed format {fmt!r} ({expected})")
+        data = bytes(msg.data)
+        header = stream_size(data)
+        if header is not None:
+            _check_size(header[1], header[2], expected_size, topic, "png mask")
+        img, diagnostics = _imdecode(_cv2(), data)
+        if img is None:
+            why = f": {diagnostics[0]}" if diagnostics else ""
+            raise LogError(f"topic {topic!r}: {len(data)} bytes do not decode as png{why} ({expected})")
+        if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
+            channels = img.shape[2] if img.ndim == 3 else 1
+            raise LogError(f"topic {topic!r}: png mask has {channels} channels of {img.dtype} ({expected})")
+        _check_size(img.shape[1], img.shape[0], expected_size, topic, "decoded mask")
+        return img.astype(np.uint16)
+    encoding = str(msg.encoding)
+    if encoding not in MASK_ENCODINGS:
+        raise LogError(f"topic {topic!r}: mask encoding {encoding!r} is not supported ({expected})")
+    arr, encoding = _raw_array(msg, topic, MASK_ENCODINGS, "mask")
+    _check_size(arr.shape[1], arr.shape[0], expected_size, topic, f"{encoding} mask")
+    return arr[:, :, 0].astype(np.uint16)
 
 
 def compressed_codec(fmt: str) -> str | None:
@@ -258,7 +298,7 @@ def encode_raw(image: np.ndarray, encoding: str = "rgb8") -> dict[str, Any]:
     """Fields of a raw sensor_msgs Image (without header) for ``image``.
 
     ``rgb8``/``bgr8`` take (H, W, 3) uint8 RGB (``bgr8`` reorders the channels);
-    ``mono8`` takes (H, W) uint8; ``32FC1`` takes (H, W) float depth [m]; ``16UC1`` takes
+    ``mono8`` takes (H, W) uint8; ``mono16`` (H, W) uint16; ``32FC1`` takes (H, W) float depth [m]; ``16UC1`` takes
     (H, W) float depth [m] and stores whole millimetres.
     """
     if encoding in ("rgb8", "bgr8"):
@@ -268,6 +308,11 @@ def encode_raw(image: np.ndarray, encoding: str = "rgb8") -> dict[str, Any]:
         arr = np.asarray(image)
         if arr.dtype != np.uint8 or arr.ndim != 2:
             raise ValueError(f"mono8 needs an (H, W) uint8 image, got {arr.dtype} {arr.shape}")
+    elif encoding == "mono16":
+        arr = np.asarray(image)
+        if arr.dtype != np.uint16 or arr.ndim != 2:
+            raise ValueError(f"mono16 needs an (H, W) uint16 image, got {arr.dtype} {arr.shape}")
+        arr = np.ascontiguousarray(arr, dtype="<u2")
     elif encoding == "32FC1":
         arr = np.asarray(image)
         if arr.ndim != 2:
@@ -279,7 +324,7 @@ def encode_raw(image: np.ndarray, encoding: str = "rgb8") -> dict[str, Any]:
             raise ValueError(f"16UC1 needs an (H, W) depth image, got shape {arr.shape}")
         arr = np.ascontiguousarray(np.clip(np.round(arr * 1e3), 0, 65535), dtype="<u2")
     else:
-        raise ValueError(f"cannot encode {encoding!r}; use rgb8, bgr8, mono8, 32FC1 or 16UC1")
+        raise ValueError(f"cannot encode {encoding!r}; use rgb8, bgr8, mono8, mono16, 32FC1 or 16UC1")
     height, width = arr.shape[:2]
     return {
         "height": height,
@@ -309,3 +354,17 @@ def encode_compressed(rgb: np.ndarray, fmt: str = "png", jpeg_quality: int = 95)
         raise ValueError(f"OpenCV could not encode a {rgb.shape} image as {fmt}")
     # image_transport's format string: source encoding; codec compressed output encoding.
     return {"format": f"rgb8; {fmt} compressed bgr8", "data": buf.tobytes()}
+
+
+def encode_mask_png(labels: np.ndarray) -> dict[str, Any]:
+    """Fields of a sensor_msgs CompressedImage (without header) for a recorded object mask:
+    (H, W) uint8 or uint16 labels as a one-channel png (``format`` ``"mono8; png compressed"``
+    or ``"mono16; png compressed"``, as image_transport writes)."""
+    arr = np.asarray(labels)
+    if arr.ndim != 2 or arr.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"a png mask needs an (H, W) uint8 or uint16 image, got {arr.dtype} {arr.shape}")
+    ok, buf = _cv2().imencode(".png", np.ascontiguousarray(arr))
+    if not ok:  # pragma: no cover - OpenCV fails only on invalid input checked above
+        raise ValueError(f"OpenCV could not encode a {arr.shape} mask as png")
+    depth = "mono8" if arr.dtype == np.uint8 else "mono16"
+    return {"format": f"{depth}; png compressed", "data": buf.tobytes()}

@@ -28,7 +28,7 @@ from ..geometry import se3
 from ..geometry.camera import PinholeCamera
 from . import ros2_msgs as rm
 from .atomic import atomic_output
-from .images import encode_compressed, encode_raw
+from .images import encode_compressed, encode_mask_png, encode_raw
 
 LIBRARY = "mvtop"
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -327,6 +327,36 @@ class LogWriter:
             c.byte_seq(fields["data"])
 
         self._write(topic, rm.COMPRESSED_IMAGE, fill, stamp_ns if log_time_ns is None else log_time_ns)
+
+    def write_mask(
+        self,
+        topic: str,
+        labels: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        *,
+        fmt: str = "raw",
+        log_time_ns: int | None = None,
+    ) -> None:
+        """A recorded object mask (H, W) uint8 or uint16 labels (0 = background), as an
+        external segmenter publishes it: ``fmt`` ``raw`` (sensor_msgs/Image mono8 or mono16)
+        or ``png`` (a one-channel sensor_msgs/CompressedImage)."""
+        labels = np.asarray(labels)
+        log_time = stamp_ns if log_time_ns is None else log_time_ns
+        if fmt == "raw":
+            encoding = "mono8" if labels.dtype == np.uint8 else "mono16"
+            self.write_image(topic, labels, stamp_ns, frame_id, encoding=encoding, log_time_ns=log_time)
+            return
+        if fmt != "png":
+            raise ValueError(f"mask format must be 'raw' or 'png', not {fmt!r}")
+        fields = encode_mask_png(labels)
+
+        def fill(c: _Cdr) -> None:
+            c.header(stamp_ns, frame_id)
+            c.string(fields["format"])
+            c.byte_seq(fields["data"])
+
+        self._write(topic, rm.COMPRESSED_IMAGE, fill, log_time)
 
     def write_camera_info(
         self, topic: str, camera: PinholeCamera, stamp_ns: int, frame_id: str, *, log_time_ns: int | None = None

@@ -40,6 +40,7 @@ _BUILTIN_BACKENDS: dict[str, str] = {
     "classical": "mvtop_cli.masking.classical:ClassicalCameraBackend",
     "sam_onnx": "mvtop_cli.masking.onnx_sam:SamOnnxBackend",
     "instance_onnx": "mvtop_cli.masking.onnx_instance:InstanceOnnxBackend",
+    "topic": "mvtop_cli.masking.recorded:RecordedMaskBackend",
 }
 
 
@@ -54,7 +55,8 @@ class MaskContext:
     indentation_m : (H, W) float or None
         A tactile sensor's gel indentation [m] from its depth topic, 0 = undeformed.
     extras : mapping
-        Backend-specific inputs (e.g. camera intrinsics), by name.
+        Backend-specific inputs (e.g. camera intrinsics), by name; ``recorded_mask`` is
+        the (H, W) label image an external segmenter recorded for the image (``topic``).
     """
 
     roi_box: tuple[int, int, int, int] | None = None

@@ -40,7 +40,8 @@ def sensor_topics(cfg: Config) -> list[SensorTopics]:
     """The reader's view of the config's sensors (honouring the enabled modalities)."""
     out = []
     if "vision" in cfg.modalities:
-        out += [SensorTopics(c.name, "camera", c.image_topic, c.info_topic, None, c.frame) for c in cfg.sensors.cameras]
+        out += [SensorTopics(c.name, "camera", c.image_topic, c.info_topic, None, c.frame, c.mask_topic)
+                for c in cfg.sensors.cameras]
     if "tactile" in cfg.modalities:
         out += [
             SensorTopics(t.name, "tactile", t.image_topic, t.info_topic, t.depth_topic, t.frame)

@@ -146,6 +146,8 @@ def render_masks(
                 at_est, at_gt = render(T_est), render(T_gt)
                 if tactile:
                     observed = observer.tactile_mask(img)
+                elif observer.recorded:  # the masks recorded in the log (masking.camera.backend: topic)
+                    observed = observer.recorded_mask(img)
                 else:  # the estimator's promptable mode at the reference pose
                     prompt = render(T_ref)
                     observed = observer.camera_prompt(img, prompt) if prompt.any() else None

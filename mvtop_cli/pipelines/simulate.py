@@ -9,6 +9,12 @@ Options reproduce how real setups record (docs/recording.md): raw or compressed 
 distortion, the end effector at the end of a robot's TF chain or only as joint states plus
 a URDF (``KINEMATICS``), and sensors at different rates with dropped images and unsynchronised
 capture times (``SensorTiming``).
+
+``mask_topics`` also records what an external segmenter would publish: each camera image's
+true visible object mask on ``/cameras/<name>/mask`` (mono8, 255 = object; png on
+``.../mask/compressed``), optionally degraded by ``mask_error_px``. Harder camera scenes
+(``sim.hard_scene``): ``shadows``, ``glossy``, ``clutter``, ``light_change``; ``HARD_SCENE``
+turns them all on.
 """
 
 from __future__ import annotations
@@ -25,8 +31,9 @@ from ..errors import MvtopError
 from ..geometry import se3
 from ..io.mcap_writer import LogWriter
 from ..sim import gripper as grip
+from ..sim import hard_scene as hard
 from ..sim import robot
-from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects
+from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects, visible_mask
 from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode, state_at
 from ..sim.object_file import resolve_object
 from ..sim.scene import board_mesh, camera_placements, receptacle_pose, table_mesh
@@ -68,6 +75,25 @@ class SimulateOptions:
     compression: str = "zstd"
     kinematics: str = "ee-tf"  # how the log gives the end effector: a key of KINEMATICS
     timing: SensorTiming = field(default_factory=SensorTiming)  # sensor rates, dropped images, capture jitter
+    mask_topics: bool = False  # record each camera's true object mask, as an external segmenter would
+    mask_format: str = "raw"  # recorded masks: raw (sensor_msgs/Image mono8) | png (CompressedImage)
+    mask_error_px: int = 0  # degrade the recorded masks: grow or shrink each by up to this many pixels
+    shadows: bool = False  # the key light casts shadows; dim ambient light leaves faces dark
+    glossy: bool = False  # the object is polished plastic (specular highlights)
+    clutter: bool = False  # textured table and board, boxes and cylinders around the board
+    light_change: float = 0.0  # how much the key light turns and the lights dim or brighten per frame
+
+
+# ``--scene hard``: every harder-image option on (and the exposure changing per frame).
+HARD_SCENE = {"shadows": True, "glossy": True, "clutter": True, "light_change": 0.3, "exposure_jitter": 0.1}
+SCENES = ("default", "hard")
+
+
+def scene_options(options: SimulateOptions, scene: str) -> SimulateOptions:
+    """``options`` with the camera scene ``scene`` (one of SCENES) applied."""
+    if scene not in SCENES:
+        raise MvtopError(f"scene must be one of {', '.join(SCENES)}, got {scene!r}")
+    return replace(options, **HARD_SCENE) if scene == "hard" else options
 
 
 @dataclass(frozen=True)
@@ -106,12 +132,15 @@ def simulate(
         raise MvtopError(
             f"image formats must be jpeg, png or raw, got {options.image_format!r}/{options.tactile_format!r}"
         )
+    if options.mask_format not in ("raw", "png"):
+        raise MvtopError(f"mask format must be raw or png, got {options.mask_format!r}")
     if options.kinematics not in KINEMATICS:
         raise MvtopError(f"kinematics must be one of {', '.join(KINEMATICS)}, got {options.kinematics!r}")
     spec = resolve_object(object_name)
     rng = np.random.default_rng(seed)
     ep_rng, cam_rng, tac_rng, scene_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=4))
     timing_rng = np.random.default_rng(rng.integers(0, 2**63))  # drawn after the others: they stay as they were
+    mask_rng, light_rng, clutter_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=3))  # likewise
 
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     collider = Collider(spec.mesh, [(spec.receptacle_mesh, T_world_rec), (board_mesh(), np.eye(4))])
@@ -135,6 +164,8 @@ def simulate(
     obj_mat = finger_mat if options.low_contrast else _material(spec.color_rgba, spec.metallic, spec.roughness)
     if options.object_rgb is not None:
         obj_mat = Material(tuple(float(c) for c in options.object_rgb), 0.0, 0.8)
+    if options.glossy:
+        obj_mat = hard.glossy(obj_mat)
     parts: dict[str, tuple[trimesh.Trimesh, Material]] = {
         "table": (table_mesh(), Material((0.36, 0.30, 0.24), 0.0, 0.9)),
         "board": (board_mesh(), Material((0.12, 0.30, 0.16), 0.0, 0.6)),
@@ -146,7 +177,13 @@ def simulate(
     cables = [_cable(scene_rng) for _ in range(options.occluders)]
     for i, (mesh, _) in enumerate(cables):
         parts[f"cable{i}"] = (mesh, Material((0.08, 0.08, 0.09), 0.0, 0.5))
-    cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
+    if options.clutter:
+        parts.update(hard.cluttered_parts(clutter_rng))
+    if options.shadows:
+        cam_renderer = CameraSceneRenderer(parts, options.width, options.height, shadows=True,
+                                           ambient=hard.HARD_AMBIENT)
+    else:
+        cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
     cam_renderer.set_pose("receptacle", T_world_rec)
     tac_camera = grip.tactile_camera(options.gel_distance_m)
     tac_renderer = CameraSceneRenderer({"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height)
@@ -171,7 +208,8 @@ def simulate(
             for k, st in enumerate(states):
                 _write_robot(log, st, options.kinematics)
                 _write_images(log, st, schedule[k], states, cameras, cam_renderer, tac_renderer, tac_camera,
-                              T_finger_tac, mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens)
+                              T_finger_tac, mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens,
+                              mask_rng, light_rng)
                 if progress is not None:
                     progress(k + 1, len(states))
             for st in (s for s in robot_states if s.stamp_ns > states[-1].stamp_ns):  # held after them
@@ -216,16 +254,23 @@ def _write_robot(log, st: EpisodeState, kinematics: str) -> None:
 
 def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states: list[EpisodeState], cameras,
                   cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px, backgrounds, cables, key_dir,
-                  options: SimulateOptions, cam_rng, tac_rng, lens=None) -> None:
+                  options: SimulateOptions, cam_rng, tac_rng, lens=None, mask_rng=None, light_rng=None) -> None:
     """The images of frame ``st``: each sensor in ``capture`` renders the scene at its capture
     time (the frame's own state when that is the frame's time) and stamps it with that time;
-    sensors whose capture is None publish nothing."""
+    sensors whose capture is None publish nothing. With ``options.mask_topics`` each camera
+    image also gets its object mask (``mask_rng`` degrades it); ``light_rng`` changes the
+    lights per frame (``options.light_change``)."""
 
     def at(t: int) -> EpisodeState:
         return st if t == st.stamp_ns else state_at(states, t)
 
     exposure = float(np.exp(cam_rng.normal(0.0, options.exposure_jitter))) if options.exposure_jitter > 0 else 1.0
-    cam_renderer.set_lights(key_dir, st.T_world_object[:3, 3] + np.array([-0.15, -0.25, 0.35]), 3.0, 1.2)
+    fill_at = st.T_world_object[:3, 3] + np.array([-0.15, -0.25, 0.35])
+    if options.shadows or options.light_change > 0:
+        key, fill = (hard.HARD_KEY_INTENSITY, hard.HARD_FILL_INTENSITY) if options.shadows else (3.0, 1.2)
+        cam_renderer.set_lights(*_frame_lights(light_rng, key_dir, fill_at, options.light_change, key, fill))
+    else:
+        cam_renderer.set_lights(key_dir, fill_at, 3.0, 1.2)
     photo = PhotometricOptions(exposure=exposure, noise_std=options.noise_std)
     for cam in cameras:
         t = capture[cam.name]
@@ -239,7 +284,8 @@ def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states:
             cam_renderer.set_pose(f"finger_{side}", s.T_world_ee @ T_ee_fingers[side])
         for i, (_, T_obj_cable) in enumerate(cables):
             cam_renderer.set_pose(f"cable{i}", T_world_obj @ T_obj_cable)
-        linear, _ = cam_renderer.render(replace(cam.camera, distortion=np.zeros(5)), cam.T_world_camera)
+        pinhole = replace(cam.camera, distortion=np.zeros(5))
+        linear, scene_depth = cam_renderer.render(pinhole, cam.T_world_camera)
         if lens is not None:  # the pinhole render seen through the lens
             import cv2
 
@@ -248,6 +294,11 @@ def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states:
         _write_rgb(
             log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality
         )
+        if options.mask_topics:
+            obj_depth = cam_renderer.render_depth_only(pinhole, cam.T_world_camera, only="object")
+            mask = object_mask_image(visible_mask(scene_depth, obj_depth), lens, options.mask_error_px, mask_rng)
+            topic = f"/cameras/{cam.name}/mask" + ("/compressed" if options.mask_format == "png" else "")
+            log.write_mask(topic, mask, t, f"{cam.name}_optical", fmt=options.mask_format)
         log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")
 
     for side in TACTILE_SIDES:
@@ -266,6 +317,28 @@ def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states:
         _write_rgb(log, f"/tactile/{side}/image", img, t, frame_id, options.tactile_format, options.jpeg_quality)
         log.write_depth(f"/tactile/{side}/depth", indentation, t, frame_id)
         log.write_camera_info(f"/tactile/{side}/camera_info", tac_camera, t, frame_id)
+
+
+def _frame_lights(rng, key_dir: np.ndarray, fill_at: np.ndarray, change: float, key: float, fill: float):
+    T_key, key, fill = hard.frame_lights(rng, key_dir, change, key, fill)
+    return T_key, fill_at, key, fill
+
+
+def object_mask_image(visible: np.ndarray, lens=None, error_px: int = 0, rng=None) -> np.ndarray:
+    """What a segmenter would publish for one camera image: (H, W) uint8, 255 on the object's
+    visible pixels (``visible`` of the pinhole render, seen through ``lens`` when the camera
+    has distortion), grown or shrunk by a random 0 to ``error_px`` pixels (``rng``)."""
+    import cv2
+
+    mask = visible.astype(np.uint8) * 255
+    if lens is not None:
+        mask = cv2.remap(mask, lens[0], lens[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+    if error_px > 0:
+        k = int(rng.integers(-error_px, error_px + 1))
+        if k != 0:
+            kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * abs(k) + 1, 2 * abs(k) + 1))
+            mask = cv2.dilate(mask, kernel) if k > 0 else cv2.erode(mask, kernel)
+    return mask
 
 
 def distortion_maps(camera) -> tuple[np.ndarray, np.ndarray]:
@@ -326,6 +399,9 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
          "info_topic": f"/cameras/{n}/camera_info", "frame": f"{n}_optical"}
         for n in ("front", "side")
     ]
+    if options.mask_topics:
+        for c in cameras:
+            c["mask_topic"] = f"/cameras/{c['name']}/mask" + ("/compressed" if options.mask_format == "png" else "")
     tactile = [
         {"name": s, "image_topic": f"/tactile/{s}/image{suffix[options.tactile_format]}",
          "info_topic": f"/tactile/{s}/camera_info", "depth_topic": f"/tactile/{s}/depth",
@@ -354,6 +430,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
             "pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0
         },
     }
+    if options.mask_topics:
+        cfg["masking"] = {"camera": {"backend": "topic"}}
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}
     if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance

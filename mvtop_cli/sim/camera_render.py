@@ -2,6 +2,8 @@
 
 Each simulated frame renders the full scene (table, board, receptacle, fingers, object and any
 extra occluders) with materials and lights, then applies exposure, sensor noise and blur.
+Harder scenes (``shadows``) let the key light cast shadows and dim the ambient light, so faces
+turned away from the key light stay dark; materials may carry a texture (cluttered scenes).
 The object's visible pixels come from the same depth buffer, for tests and debugging.
 """
 
@@ -28,11 +30,14 @@ def pyrender_intrinsics(pyrender, camera: PinholeCamera, znear: float = 0.005, z
 
 @dataclass(frozen=True)
 class Material:
-    """Base colour (RGB 0-1), metalness and roughness of a simulated part."""
+    """Base colour (RGB 0-1), metalness and roughness of a simulated part; ``texture`` an
+    optional (H, W, 3) uint8 RGB image multiplied into the colour (the mesh needs UV coordinates,
+    ``trimesh.visual.TextureVisuals``)."""
 
     rgb: tuple[float, float, float]
     metallic: float = 0.0
     roughness: float = 0.7
+    texture: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -47,12 +52,15 @@ class PhotometricOptions:
 class CameraSceneRenderer:
     """Renders RGB images of a set of named meshes whose poses change per frame."""
 
-    def __init__(self, meshes: dict[str, tuple[trimesh.Trimesh, Material]], width: int, height: int):
+    def __init__(self, meshes: dict[str, tuple[trimesh.Trimesh, Material]], width: int, height: int,
+                 shadows: bool = False, ambient: float = 0.25):
         """Renders ``meshes`` (name -> mesh, material) at ``width`` x ``height`` through the
-        process's shared offscreen context (``render.gl``)."""
+        process's shared offscreen context (``render.gl``); ``shadows``: the key (directional)
+        light casts shadows; ``ambient`` the ambient light level (0-1)."""
         pr = import_pyrender()
         self._pr = pr
-        self.scene = pr.Scene(bg_color=[0.55, 0.58, 0.62, 1.0], ambient_light=[0.25, 0.25, 0.25])
+        self.shadows = shadows
+        self.scene = pr.Scene(bg_color=[0.55, 0.58, 0.62, 1.0], ambient_light=[ambient] * 3)
         self.nodes: dict[str, object] = {}
         self.meshes: dict[str, object] = {}
         # pyrender draws opaque meshes sorted by the distance of their node origin from the
@@ -61,8 +69,10 @@ class CameraSceneRenderer:
         # depth-test tie, the same in every run.
         self._centre: dict[str, np.ndarray] = {}
         for name, (mesh, mat) in meshes.items():
+            texture = None if mat.texture is None else pr.Texture(source=mat.texture, source_channels="RGB")
             material = pr.MetallicRoughnessMaterial(
-                baseColorFactor=[*mat.rgb, 1.0], metallicFactor=mat.metallic, roughnessFactor=mat.roughness
+                baseColorFactor=[*mat.rgb, 1.0], metallicFactor=mat.metallic, roughnessFactor=mat.roughness,
+                baseColorTexture=texture,
             )
             centre = np.asarray(mesh.bounds, dtype=float).mean(axis=0)
             self._centre[name] = centre
@@ -102,7 +112,10 @@ class CameraSceneRenderer:
     def render(self, camera: PinholeCamera, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Linear RGB (H, W, 3) float in [0, 1] and depth (H, W) [m] (0 = background)."""
         self._set_camera(camera, T_world_camera)
-        color, depth = self.renderer.render(self.scene)
+        if self.shadows:
+            color, depth = self.renderer.render(self.scene, flags=self._pr.RenderFlags.SHADOWS_DIRECTIONAL)
+        else:
+            color, depth = self.renderer.render(self.scene)
         return color.astype(np.float32) / 255.0, depth
 
     def render_depth_only(self, camera: PinholeCamera, T_world_camera: np.ndarray, only: str) -> np.ndarray:
