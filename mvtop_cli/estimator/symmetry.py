@@ -11,11 +11,10 @@ reported covariance is meaningless and the mean may not even be a member of the 
 
 ``SymmetryFold`` maps each pose to the member of its class whose rotation is closest to a
 reference pose's (largest ``trace(R_ref^T R)``, i.e. smallest geodesic angle). For the
-continuous part the best angle is closed-form: with ``M = R_ref^T R G_k`` and the unit axis
-``a``, ``trace(M Exp(theta a)) = A cos(theta) + B sin(theta) + a^T M a`` (Rodrigues), with
-``A = trace(M) - a^T M a`` and ``B = trace(M [a]x)``, largest at ``theta = atan2(B, A)``. At that
-angle the remaining rotation from the reference has no component about the (reference's)
-axis, so the folded belief's covariance holds only the identifiable part of the pose.
+continuous part the best angle is closed-form (``se3.best_turn_about_axis``, with
+``M = R_ref^T R G_k``). At that angle the remaining rotation from the reference has no
+component about the axis, so the folded belief's covariance holds only the identifiable part
+of the pose.
 
 The filter stays model-agnostic: it takes the fold as an optional callable
 ``(poses (N, 4, 4), reference (4, 4)) -> poses`` (``filter.particles.ParticleSet.spread``,
@@ -76,18 +75,10 @@ class SymmetryFold:
         G = self.group
         # M_k = R_ref^T R G_k for every pose and group element: (N, m, 3, 3)
         M = np.einsum("ji,njk,mkl->nmil", R_ref, T[:, :3, :3], G[:, :3, :3])
-        trace = np.einsum("nmii->nm", M)
         if not self.continuous:
-            score = trace
-            theta = None
+            score, theta = np.einsum("nmii->nm", M), None
         else:
-            a = self.axis
-            K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-            aMa = np.einsum("i,nmij,j->nm", a, M, a)
-            A = trace - aMa
-            B = np.einsum("nmij,ji->nm", M, K)
-            theta = np.arctan2(B, A)
-            score = np.hypot(A, B) + aMa
+            theta, score = se3.best_turn_about_axis(M, self.axis)
         # ties (and rounding-level differences) go to the lowest index: the identity first
         k = np.argmax(score >= score.max(axis=1, keepdims=True) - 1e-12, axis=1)
         if not self.continuous:
