@@ -275,6 +275,10 @@ class FilterConfig:
         0.0, 1000.0, lo_open=True, doc="estimate_jump: a move beyond this many RMS spreads of the predicted belief"))
     roi_size_px: int = field(default=128, metadata=_rng(16, 1024))
     seed: int = field(default=0, metadata=_rng(0, 2**63 - 1))
+    fold_symmetries: bool = field(default=True, metadata={"doc": (
+        "summarise the belief modulo object.symmetries and object.continuous_symmetry: each particle is taken "
+        "as the member of its symmetry class closest to the reference before the estimate, covariance, jump "
+        "check and refinement chart (estimator/symmetry.py); off: the particles as they are")})
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ from .motion import MotionModel
 from .observation import ObservationModel
 from .prior import GraspPriorModel
 from .scene import SceneModel
+from .symmetry import SymmetryFold
 
 
 @dataclass
@@ -91,6 +92,8 @@ class Estimator:
         self.scene = scene
         f, s = cfg.filter, cfg.search
         self.rng = np.random.default_rng(f.seed)
+        # a symmetric part's belief summarised modulo its symmetries (estimator/symmetry.py)
+        self.fold = SymmetryFold.from_config(cfg, scene.symmetries)
         self.motion = MotionModel(
             f.sigma_low_translation_m, np.radians(f.sigma_low_rotation_deg),
             f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg),
@@ -100,7 +103,7 @@ class Estimator:
             jump_sigmas=f.jump_sigmas, refine_iterations=f.refine_iterations, refine_shrink=f.refine_shrink,
             floor_translation_m=f.floor_translation_m, floor_rotation_rad=np.radians(f.floor_rotation_deg),
             refine_target_ess_fraction=f.refine_target_ess_fraction,
-            collapse_retry_iterations=f.collapse_retry_iterations,
+            collapse_retry_iterations=f.collapse_retry_iterations, fold=self.fold,
         )
         self.prior = GraspPriorModel(cfg.grasp_prior, s.bound)
         self.observations = ObservationModel(cfg, scene, frame_pose or _no_moving_frames)
@@ -168,7 +171,7 @@ class Estimator:
         flags = list(dict.fromkeys(flags))
 
         if not first:
-            jump = self.pf.check_jump(ps.spread(), result.estimate, bool(contact))
+            jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(contact))
             if jump.jumped:
                 cause = "the belief was re-searched" if "re_searched" in flags else ""
                 warnings.append(jump_warning(frame.index, jump, self.pf.jump_sigmas, cause))
@@ -206,7 +209,7 @@ class Estimator:
         m = self.cfg.masking
         if first or not m.prompt_when_converged:
             return False
-        spread = belief.spread()
+        spread = belief.spread(self.fold)
         return (spread.translation_rms_m < m.converged_translation_m
                 and spread.rotation_rms_rad < np.radians(m.converged_rotation_deg))
 

@@ -31,6 +31,7 @@ from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
 from .scene import OBJECT_ID, SceneModel
+from .symmetry import SymmetryFold
 
 
 def _resolve_paths(options: dict[str, Any], base: Path | None) -> dict[str, Any]:
@@ -156,6 +157,7 @@ class ObservationModel:
         self.frame_pose = frame_pose
         self.observer = Observer(cfg)
         self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
+        self.fold = SymmetryFold.from_config(cfg, scene.symmetries)  # the belief's mean modulo symmetries
 
     def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None) -> dict[str, Roi]:
         """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
@@ -195,7 +197,8 @@ class ObservationModel:
                     masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
         elif frame.cameras:
             if converged:
-                cam_masks, mask_mode = self.prompted_masks(frame, rois, occluders, belief.mean()), "prompt"
+                mean = belief.mean() if self.fold is None else belief.spread(self.fold).mean
+                cam_masks, mask_mode = self.prompted_masks(frame, rois, occluders, mean), "prompt"
             else:
                 w = belief.weights()
                 idx = np.argsort(-w, kind="stable")[: self.cfg.masking.candidates]

@@ -120,6 +120,25 @@ def lateral_displacement(T_est, T_gt, points, group, axis, point, insertion_axis
     return minimise(per_pose, T_est, T_gt, points, group, axis, point)[0]
 
 
+def closest_in_rotation(T_est, T_gt, group, axis, point) -> np.ndarray:
+    """The symmetry ``S = C(theta) @ G_k`` (N, 4, 4) whose equivalent ``T_est @ S`` has the
+    rotation closest to the truth's (geodesic angle; ``theta`` in closed form,
+    ``se3.best_turn_about_axis``). The rotation error left then has no component about the
+    axis: what NEES compares with a covariance summarised modulo the symmetry
+    (estimator/symmetry.py), which has none there either."""
+    T_est = np.asarray(T_est, dtype=np.float64).reshape(-1, 4, 4)
+    T_gt = np.asarray(T_gt, dtype=np.float64).reshape(-1, 4, 4)
+    G = np.asarray(group, dtype=np.float64).reshape(-1, 4, 4)
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    # trace(R_gt^T R_est C(theta) G_k) = trace(M_k C(theta)) with M_k = G_k R_gt^T R_est
+    M = np.einsum("mij,nkj,nkl->nmil", G[:, :3, :3], T_gt[:, :3, :3], T_est[:, :3, :3])
+    theta, score = se3.best_turn_about_axis(M, a)
+    k = np.argmax(score, axis=1)
+    rows = np.arange(len(T_est))
+    return rotation_about(a, point, theta[rows, k]) @ G[k]
+
+
 def closest_equivalent(T_est, T_gt, points, group, axis, point) -> np.ndarray:
     """The symmetric equivalent ``T_est @ C(theta) @ G_k`` (N, 4, 4) closest to the truth by the
     MSSD criterion (largest distance of ``points``), as :func:`metrics.closest_symmetry` picks

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
 
 from ..geometry import se3
+
+Fold = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""Optional canonicalisation of poses handed in by the model: ``(poses (N, 4, 4), reference
+(4, 4)) -> poses (N, 4, 4)``, each pose replaced by an equivalent one (same likelihood, e.g. a
+symmetric object's pose turned by a symmetry) closest to ``reference``. The filter never looks
+inside it (the estimator's is ``estimator.symmetry.SymmetryFold``)."""
 
 
 def normalise_log_weights(log_weights: np.ndarray) -> np.ndarray:
@@ -158,10 +165,23 @@ class ParticleSet:
         (Sec. IV-C) with a proper rotation average."""
         return se3.weighted_mean(self.poses, self.weights())
 
-    def spread(self) -> Spread:
-        """Weighted mean and tangent-space covariance (``se3.pose_spread``)."""
-        mean, cov = se3.pose_spread(self.poses, self.weights())
+    def spread(self, fold: Fold | None = None) -> Spread:
+        """Weighted mean and tangent-space covariance (``se3.pose_spread``). With ``fold``
+        (see ``Fold``), of the folded poses: first onto the heaviest particle, then, for a
+        reference that does not depend on which particle that was, onto the mean of that."""
+        w = self.weights()
+        if fold is None:
+            mean, cov = se3.pose_spread(self.poses, w)
+        else:
+            mean, cov = se3.pose_spread(self.folded(fold), w)
         return Spread(mean=mean, covariance=cov)
+
+    def folded(self, fold: Fold) -> np.ndarray:
+        """The poses (N, 4, 4) folded (``Fold``) onto the weighted mean of their fold onto the
+        heaviest particle."""
+        w = self.weights()
+        first = fold(self.poses, self.poses[int(np.argmax(w))])
+        return fold(self.poses, se3.weighted_mean(first, w))
 
     def with_log_weights(self, log_weights: np.ndarray) -> ParticleSet:
         """The same poses with other log-weights (N,)."""

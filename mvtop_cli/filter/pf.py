@@ -27,7 +27,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .health import JumpCheck, check_jump
-from .particles import ParticleSet, Spread
+from .particles import Fold, ParticleSet, Spread
 from .resampling import get_scheme, resample_if_needed
 from .result import LogLikelihoodFn, StepResult, evaluate, finish
 from .smc import TemperedRefinement, check_shrink
@@ -81,6 +81,13 @@ class ParticleFilter:
       the particles; ``ess_collapsed`` stays flagged and ``collapse_retry`` says whether
       the redo kept its ESS above the threshold. Frames without a collapse are
       unaffected.
+    fold : callable or None
+      The model's canonicalisation of poses (``particles.Fold``; a symmetric object's
+      ``estimator.symmetry.SymmetryFold``): the estimate and covariance are those of the
+      folded particles, the jump check folds the estimate onto the previous mean, and
+      ``refine`` folds the predicted particles onto their mean before its tangent chart, so
+      a belief spread freely about a symmetry axis stays within the chart. None: the
+      particles as they are.
     """
 
     def __init__(
@@ -98,6 +105,7 @@ class ParticleFilter:
         floor_rotation_rad: float = float(np.deg2rad(0.05)),
         refine_target_ess_fraction: float = 0.5,
         collapse_retry_iterations: int = 0,
+        fold: Fold | None = None,
     ) -> None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator (no global random state)")
@@ -127,11 +135,12 @@ class ParticleFilter:
         self.floor_rotation_rad = float(floor_rotation_rad)
         self.refine_target_ess_fraction = float(refine_target_ess_fraction)
         self.collapse_retry_iterations = int(collapse_retry_iterations)
+        self.fold = fold
         self.smc = TemperedRefinement(
             resampling, rng, iterations=max(self.refine_iterations, 1), shrink=self.refine_shrink,
             floor_translation_m=self.floor_translation_m, floor_rotation_rad=self.floor_rotation_rad,
             target_ess_fraction=self.refine_target_ess_fraction, collapse_threshold=self.collapse_threshold,
-            collapse_retry_iterations=self.collapse_retry_iterations,
+            collapse_retry_iterations=self.collapse_retry_iterations, fold=fold,
         )
 
     # -- the loop ---------------------------------------------------------------------
@@ -154,7 +163,7 @@ class ParticleFilter:
         particles ``X_init``)."""
         k = self.refine_iterations if refine_iterations is None else int(refine_iterations)
         result = self.assimilate(self.predict(particles, contact), log_likelihood_fn, k)
-        jump = self.check_jump(particles.spread(), result.estimate, contact)
+        jump = self.check_jump(particles.spread(self.fold), result.estimate, contact)
         d = result.diagnostics
         d.update(contact=bool(contact), jump_translation_m=jump.translation_m, jump_rotation_rad=jump.rotation_rad,
                  allowed_translation_m=jump.allowed_translation_m, allowed_rotation_rad=jump.allowed_rotation_rad)
@@ -189,7 +198,7 @@ class ParticleFilter:
             posterior = particles.with_log_weights(prior_lw)
             flags.append("degenerate_weights")
         ess = posterior.ess()
-        spread = posterior.spread()
+        spread = posterior.spread(self.fold)
         if flags:  # degenerate: hand the predicted particles on untouched
             out, resampled = posterior, False
         else:
@@ -231,7 +240,10 @@ class ParticleFilter:
 
     def check_jump(self, previous: Spread, estimate: np.ndarray, contact: bool) -> JumpCheck:
         """The one jump check (``health.check_jump``): ``estimate`` (4, 4) against the
-        previous frame's belief ``previous`` and the motion noise of this contact state."""
+        previous frame's belief ``previous`` and the motion noise of this contact state; with a
+        ``fold``, the estimate's equivalent closest to the previous mean."""
+        if self.fold is not None:
+            estimate = self.fold(np.asarray(estimate, dtype=np.float64)[None], previous.mean)[0]
         sigma_t, sigma_r = self.motion.sigmas(bool(contact))
         return check_jump(previous, estimate, sigma_t, sigma_r, self.jump_sigmas, self.floor_translation_m,
                           self.floor_rotation_rad)

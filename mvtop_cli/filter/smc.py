@@ -12,7 +12,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from ..geometry import se3
-from .particles import ParticleSet, ess_from_log_weights, largest_exponent, normalise_log_weights
+from .particles import Fold, ParticleSet, Spread, ess_from_log_weights, largest_exponent, normalise_log_weights
 from .resampling import get_scheme
 from .result import LogLikelihoodFn, StepResult, evaluate, finish
 
@@ -198,6 +198,10 @@ class TemperedRefinement:
     collapse_retry_iterations : int
       0: an ESS collapse is only flagged; more: the frame is redone once with
       ``max(collapse_retry_iterations, 3 * iterations)`` iterations.
+    fold : callable or None
+      The model's canonicalisation of poses (``particles.Fold``): the predicted particles
+      are folded onto their mean before the chart, and the result's spread is that of the
+      folded particles.
     """
 
     def __init__(
@@ -212,6 +216,7 @@ class TemperedRefinement:
         target_ess_fraction: float,
         collapse_threshold: Callable[[int], float],
         collapse_retry_iterations: int,
+        fold: Fold | None = None,
     ) -> None:
         check_shrink(shrink)
         self.resampling = resampling
@@ -223,6 +228,7 @@ class TemperedRefinement:
         self.target_ess_fraction = float(target_ess_fraction)
         self._collapse_threshold = collapse_threshold
         self.collapse_retry_iterations = int(collapse_retry_iterations)
+        self.fold = fold
 
     def __call__(
         self,
@@ -316,10 +322,11 @@ class TemperedRefinement:
         scheme = get_scheme(self.resampling)
         floor_var = np.array([self.floor_translation_m] * 3 + [self.floor_rotation_rad] * 3) ** 2
 
-        reference = particles.spread()
+        poses = particles.poses if self.fold is None else particles.folded(self.fold)
+        reference = Spread(*se3.pose_spread(poses, particles.weights()))
         chart = _Chart(reference.mean)
         prior_lw = particles.normalised_log_weights()
-        prior = _KernelPrior(chart.to_tangent(particles.poses), prior_lw, floor_var)
+        prior = _KernelPrior(chart.to_tangent(poses), prior_lw, floor_var)
         state = _SamplerState(prior.sample(scheme(prior_lw, n, rng), rng))
         state.log_lik, n_invalid = evaluate(log_likelihood_fn, chart.from_tangent(state.xi))
         flags: list[str] = []
@@ -375,7 +382,7 @@ class TemperedRefinement:
                 scale = min(scale / shrink, 2.0 * _RW_SCALE)
 
         out = ParticleSet.uniform(chart.from_tangent(state.xi))
-        spread = out.spread()
+        spread = out.spread(self.fold)
         if min(stage_ess, default=float(n)) < self._collapse_threshold(n):
             flags.append("ess_collapsed")
         diagnostics.update(

@@ -75,6 +75,20 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
+def best_turn_about_axis(M: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The angle ``theta`` (...) [rad] that maximises ``trace(M @ Exp(theta a))`` for matrices
+    ``M`` (..., 3, 3) and the unit axis ``a`` (3,), and that maximum (...). Closed form: by
+    Rodrigues the trace is ``A cos(theta) + B sin(theta) + a^T M a`` with ``A = trace(M) - a^T M a``
+    and ``B = trace(M [a]x)``, largest at ``theta = atan2(B, A)``. With ``M = R_ref^T R`` this is
+    the turn of ``R`` about its own ``a`` axis that brings it closest to ``R_ref`` (geodesic angle)."""
+    M = np.asarray(M, dtype=np.float64)
+    a = np.asarray(axis, dtype=np.float64)
+    aMa = np.einsum("i,...ij,j->...", a, M, a)
+    A = np.einsum("...ii->...", M) - aMa
+    B = np.einsum("...ij,ji->...", M, _skew(a))
+    return np.arctan2(B, A), np.hypot(A, B) + aMa
+
+
 def _skew(w: np.ndarray) -> np.ndarray:
     W = np.zeros(w.shape[:-1] + (3, 3))
     W[..., 0, 1], W[..., 0, 2] = -w[..., 2], w[..., 1]

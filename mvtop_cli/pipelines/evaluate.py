@@ -23,6 +23,7 @@ from ..errors import ConfigError, LogError, MvtopError, TrackError
 from ..eval import metrics as M
 from ..eval import report as R
 from ..eval.clearance import continuous_scores, insertable
+from ..eval.continuous import closest_in_rotation
 from ..geometry import se3
 from ..io.atomic import atomic_output
 
@@ -434,7 +435,10 @@ def score_poses(
     }
     S = G[k]
     if model.continuous_symmetry is not None:  # exact minima over the angle (eval/continuous.py)
-        S = continuous_scores(model, T_est, T_gt, out)
+        continuous_scores(model, T_est, T_gt, out)
+        # NEES against the equivalent closest in rotation: no error about the axis is left, where
+        # the estimate's covariance (folded modulo the symmetry) has none either
+        S = closest_in_rotation(T_est, T_gt, model.group, *model.continuous_symmetry)
         sym = True
     out["add_or_adi_m"] = out["adi_m"] if sym else out["add_m"]
     if model.clearance_m is None:  # no clearance configured: not decidable

@@ -144,7 +144,8 @@ def simulate(
 
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     collider = Collider(spec.mesh, [(spec.receptacle_mesh, T_world_rec), (board_mesh(), np.eye(4))])
-    states = plan_episode(T_world_rec, spec.insertion_depth_m, spec.grasp, spec.mesh, collider, options.episode, ep_rng)
+    states = plan_episode(T_world_rec, spec.insertion_depth_m, spec.grasp, spec.mesh, collider, options.episode, ep_rng,
+                          spec.grasp_squeeze)
     sensors = [("front", "camera"), ("side", "camera")] + [(s, "tactile") for s in TACTILE_SIDES]
     try:
         schedule = capture_schedule([s.stamp_ns for s in states], sensors, options.timing, timing_rng)

@@ -15,7 +15,9 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from ..contact.fcl_distance import FclDistance
+from ..errors import ConfigError
 from ..geometry import se3
+from .gripper import pad_band_extent
 
 CONTACT_DISTANCE_M = 5e-5  # distance below which the object is reported touching [m]
 _BISECTION_STEPS = 24  # halvings of the descent step: < 1e-7 m residual on a 1 mm step
@@ -96,15 +98,27 @@ def apply_offset(offset: np.ndarray, T_ee_object: np.ndarray) -> np.ndarray:
 
 
 def centre_between_pads(
-    T_ee_object: np.ndarray, vertices: np.ndarray, indentation_m: float
+    T_ee_object: np.ndarray, mesh: trimesh.Trimesh, indentation_m: float, squeeze: str = "pads"
 ) -> tuple[np.ndarray, float, float]:
     """Shift the object along ee y so the two pads squeeze it symmetrically, and place the pads
-    ``indentation_m`` inside its extent. Returns (T_ee_object, pad_left_y, pad_right_y) [m]."""
-    y = se3.transform_points(T_ee_object, vertices)[:, 1]
-    shift = -(y.max() + y.min()) / 2.0
+    ``indentation_m`` inside its extent along ee y: with ``squeeze`` ``pads`` the extent of its
+    surface within the pads' band (``gripper.pad_band_extent``), with ``widest`` that of all its
+    vertices. Returns (T_ee_object, pad_left_y, pad_right_y) [m]."""
+    if squeeze == "widest":
+        y = se3.transform_points(T_ee_object, mesh.vertices)[:, 1]
+        lo, hi = y.min(), y.max()
+    elif squeeze == "pads":
+        extent = pad_band_extent(mesh.vertices, mesh.edges_unique, T_ee_object)
+        if extent is None:
+            raise ConfigError("the gripper's pads do not reach the part at the sampled grasp offset: grasp.height_m "
+                              "is too close to the part's end for the in-hand offset (EpisodeOptions)")
+        lo, hi = extent
+    else:
+        raise ValueError(f"squeeze must be 'pads' or 'widest', got {squeeze!r}")
+    shift = -(hi + lo) / 2.0
     T = T_ee_object.copy()
     T[1, 3] += shift
-    half = (y.max() - y.min()) / 2.0
+    half = (hi - lo) / 2.0
     return T, half - indentation_m, -(half - indentation_m)
 
 
@@ -116,11 +130,13 @@ def plan_episode(
     collider: Collider,
     options: EpisodeOptions,
     rng: np.random.Generator,
+    squeeze: str = "pads",
 ) -> list[EpisodeState]:
-    """Ground-truth states of every frame of one episode."""
+    """Ground-truth states of every frame of one episode; ``squeeze`` where the pads close on
+    the part (``centre_between_pads``)."""
     offset = sample_grasp_offset(options, rng)
     T_ee_obj, pad_l, pad_r = centre_between_pads(
-        apply_offset(offset, T_ee_object_nominal), object_mesh.vertices, options.indentation_m
+        apply_offset(offset, T_ee_object_nominal), object_mesh, options.indentation_m, squeeze
     )
 
     # Commanded end-effector poses assume the nominal grasp: the object is believed to sit at
@@ -170,7 +186,7 @@ def plan_episode(
                 rng.normal(0.0, options.slip_translation_m, 3),
             )
             T_ee_obj, pad_l, pad_r = centre_between_pads(
-                apply_offset(slip, T_ee_obj), object_mesh.vertices, options.indentation_m
+                apply_offset(slip, T_ee_obj), object_mesh, options.indentation_m, squeeze
             )
         prev_ok = _lift_until_free(prev_ok, T_ee_obj, collider)
         T_ee, d = _descend_until_contact(prev_ok, target, T_ee_obj, collider)

@@ -87,6 +87,28 @@ def finger_poses(opening_m: float | np.ndarray) -> dict[str, np.ndarray]:
     return poses
 
 
+def pad_band_extent(vertices: np.ndarray, edges: np.ndarray, T_ee_object: np.ndarray) -> tuple[float, float] | None:
+    """The part's extent ``(y_min, y_max)`` [m] along ee y within the gel pads' band
+    ``|z_ee| <= half the pad's short side``: where the pads can squeeze it, not its widest
+    extent elsewhere (a flange above or below the pads). ``vertices`` (n, 3) [m] and the mesh's
+    unique ``edges`` (e, 2) in the object frame; the band's part of the surface is the vertices
+    in it and the edges' crossings of its two planes. None when the part does not reach the band."""
+    half = GEL_PAD_SIZE_M[1] / 2.0
+    V = trimesh.transformations.transform_points(np.asarray(vertices, dtype=np.float64), T_ee_object)
+    e = np.asarray(edges)
+    pts = [V[np.abs(V[:, 2]) <= half, 1]]
+    for plane in (half, -half):
+        z0, z1 = V[e[:, 0], 2], V[e[:, 1], 2]
+        cross = (z0 - plane) * (z1 - plane) < 0
+        a, b = V[e[cross, 0]], V[e[cross, 1]]
+        s = (plane - a[:, 2]) / (b[:, 2] - a[:, 2])
+        pts.append(a[:, 1] + s * (b[:, 1] - a[:, 1]))
+    y = np.concatenate(pts)
+    if len(y) == 0:
+        return None
+    return float(y.min()), float(y.max())
+
+
 def T_finger_tactile_optical(gel_distance_m: float = 0.025) -> np.ndarray:
     """Pose (4, 4) of the tactile camera's optical frame in the finger frame.
 

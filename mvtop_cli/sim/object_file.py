@@ -60,13 +60,20 @@ class GraspSpec:
     z axis at ``height_m`` above the leading face, the pads on the object's +-y faces (``yaw_deg``
     0) or turned about the object's z axis by ``yaw_deg``; or an explicit ``pose``
     (``T_ee_object``, ee +z down, fingers along ee +-y). ``height_m`` defaults to the lowest
-    grasp whose fingertips clear the receptacle at the inserted pose."""
+    grasp whose fingertips clear the receptacle at the inserted pose.
+
+    ``squeeze`` says where the simulator's pads close on the part after each grasp offset and
+    slip: ``pads`` on its surface within the pads' band (``gripper.pad_band_extent``, as
+    ``width_m`` is measured), ``widest`` on its widest extent over all vertices (the built-in
+    objects, whose sample logs were made that way)."""
 
     height_m: float | None = field(default=None, metadata=_range(0.0, 1.0))
     yaw_deg: float = field(default=0.0, metadata=_range(-360.0, 360.0))
     pose: PoseSpec | None = None
     width_m: float | None = field(default=None, metadata=_range(0.0, 0.2, lo_open=True,
                                                                 doc="object width between the pads"))
+    squeeze: Literal["pads", "widest"] = field(default="pads", metadata={
+        "doc": "where the simulated pads close: the part's surface within their band, or its widest extent"})
 
 
 @dataclass(frozen=True)
@@ -238,7 +245,7 @@ def object_spec(desc: ObjectFile, mesh: trimesh.Trimesh, receptacle_mesh: trimes
         insertion_depth_m=desc.insertion_depth_m, clearance_m=desc.clearance_m, grasp=grasp, grasp_width_m=width,
         symmetry=symmetry, color_rgba=a.color_rgba, receptacle_color_rgba=a.receptacle_color_rgba,
         material=a.material, metallic=a.metallic, roughness=a.roughness, continuous_symmetry=cont,
-        directional_clearance=dc, render_mesh=render_mesh,
+        directional_clearance=dc, render_mesh=render_mesh, grasp_squeeze=g.squeeze,
     )
 
 
@@ -264,26 +271,15 @@ def _grasp(height_m: float, yaw_deg: float) -> np.ndarray:
 
 
 def pad_width(mesh: trimesh.Trimesh, T_ee_object: np.ndarray) -> float:
-    """The part's width [m] along ee y between the gel pads' edges (the band ``|z_ee| <= half the
-    pad's short side``): the finger opening that just touches the part where the pads hold it,
-    not its widest extent elsewhere (a flange above or below the pads)."""
-    from ..sim.gripper import GEL_PAD_SIZE_M
+    """The part's width [m] along ee y between the gel pads' edges (``gripper.pad_band_extent``):
+    the finger opening that just touches the part where the pads hold it, not its widest
+    extent elsewhere (a flange above or below the pads)."""
+    from ..sim.gripper import pad_band_extent
 
-    half = GEL_PAD_SIZE_M[1] / 2.0
-    V = trimesh.transformations.transform_points(mesh.vertices, T_ee_object)
-    e = mesh.edges_unique
-    # the part of the surface in the band: the vertices in it and the edges' crossings of its planes
-    pts = [V[np.abs(V[:, 2]) <= half]]
-    for plane in (half, -half):
-        z0, z1 = V[e[:, 0], 2], V[e[:, 1], 2]
-        cross = (z0 - plane) * (z1 - plane) < 0
-        a, b = V[e[cross, 0]], V[e[cross, 1]]
-        s = (plane - a[:, 2]) / (b[:, 2] - a[:, 2])
-        pts.append(a + s[:, None] * (b - a))
-    pts = np.concatenate(pts)
-    if len(pts) == 0:
+    extent = pad_band_extent(mesh.vertices, mesh.edges_unique, T_ee_object)
+    if extent is None:
         raise ConfigError("the gripper's pads do not reach the part at the grasp (grasp.height_m or grasp.pose)")
-    return float(pts[:, 1].max() - pts[:, 1].min())
+    return extent[1] - extent[0]
 
 
 def resolve_object(ref):

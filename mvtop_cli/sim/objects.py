@@ -82,6 +82,9 @@ class ObjectSpec:
         Clearance per lateral direction [m]; ``clearance_m`` is then its smallest value.
     render_mesh : trimesh.Trimesh or None
         A simplified copy of ``mesh`` (object frame [m]) for the estimator's mask renderer.
+    grasp_squeeze : str
+        Where the simulated pads close on the part (``object_file.GraspSpec.squeeze``):
+        ``pads`` (its surface within the pads' band) or ``widest`` (its widest extent).
     """
 
     name: str
@@ -101,6 +104,7 @@ class ObjectSpec:
     continuous_symmetry: ContinuousSymmetry | None = None
     directional_clearance: DirectionalClearance | None = None
     render_mesh: trimesh.Trimesh | None = None
+    grasp_squeeze: str = "pads"
 
     @property
     def T_receptacle_object_inserted(self) -> np.ndarray:
@@ -483,7 +487,8 @@ def builtin_description(name: str):
         receptacle=PartMesh(mesh=Path(f"{name}_receptacle.obj")),
         insertion_depth_m=f["insertion_depth_m"],
         clearance_m=f["clearance_m"],
-        grasp=GraspSpec(height_m=float(grasp[2, 3]), width_m=f["grasp_width_m"]),
+        # the sample logs were simulated with the pads centred on the widest extent
+        grasp=GraspSpec(height_m=float(grasp[2, 3]), width_m=f["grasp_width_m"], squeeze="widest"),
         symmetries=SymmetrySpec(discrete=tuple(PoseSpec.from_matrix(S) for S in f["symmetry"][1:])),
         appearance=Appearance(color_rgba=f["color_rgba"], receptacle_color_rgba=f["receptacle_color_rgba"],
                               material=f["material"], metallic=f["metallic"], roughness=f["roughness"]),

@@ -43,3 +43,24 @@ def test_minimum_matches_a_dense_search_and_beats_a_finite_list():
     listed = C.rotation_about(AXIS, POINT, np.radians(np.arange(0, 360, 0.36)))
     assert C.pose_error_bbox(T_turn, T_gt, corners, np.eye(4)[None], AXIS, POINT)[0] < 1e-12
     assert M.pose_error_bbox(T_turn, T_gt, corners, listed)[0] > 5e-6
+
+
+def test_closest_in_rotation_leaves_no_error_about_the_axis_and_beats_every_member():
+    from mvtop_cli.geometry import se3
+
+    rng = np.random.default_rng(4)
+    G = np.stack([np.eye(4), FLIP])
+    T_gt = np.tile(np.eye(4), (5, 1, 1))
+    T_gt[:, :3, :3] = se3.rotvec_to_matrix(rng.normal(size=(5, 3)))
+    tilt = se3.make_pose(se3.rotvec_to_matrix(np.radians([1.5, -0.7, 0.3])), [0.0002, 0.0, -0.0001])
+    T_est = T_gt @ tilt @ C.rotation_about(AXIS, POINT, rng.uniform(0, 2 * np.pi, 5)) @ FLIP
+    S = C.closest_in_rotation(T_est, T_gt, G, AXIS, POINT)
+    T_sym = T_est @ S
+    e = M.tangent_error(T_sym, T_gt)
+    b = np.einsum("nij,j->ni", T_sym[:, :3, :3], AXIS)  # the axis of the equivalent, world axes
+    np.testing.assert_allclose(np.einsum("ni,ni->n", e[:, 3:], b), 0.0, atol=1e-12)
+    dense = C.rotation_about(AXIS, POINT, np.linspace(0, 2 * np.pi, 20001))
+    for i in range(5):
+        members = np.concatenate([T_est[i] @ dense @ g for g in G])
+        best = se3.rotation_angle(T_gt[i, :3, :3], members[:, :3, :3]).min()
+        assert se3.rotation_angle(T_gt[i, :3, :3], T_sym[i, :3, :3]) <= best + 1e-7

@@ -32,6 +32,7 @@ def test_builtin_object_file_is_current_and_loads_to_the_builtin_object(name):
     for key in ("insertion_depth_m", "clearance_m", "grasp_width_m", "metallic", "roughness"):
         assert getattr(loaded, key) == pytest.approx(getattr(spec, key), abs=1e-15)
     assert (loaded.color_rgba, loaded.material) == (spec.color_rgba, spec.material)
+    assert loaded.grasp_squeeze == spec.grasp_squeeze == "widest"  # as the sample logs were made
 
 
 def _write(tmp_path: Path, data: dict) -> Path:
