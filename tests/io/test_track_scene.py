@@ -8,24 +8,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _track_decode import decode_track, pose_of
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from scipy.spatial.transform import Rotation
 
 from mvtop_cli.config import load_config
 from mvtop_cli.io.meshes import load_mesh
 from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
 
-rosbags_typesys = pytest.importorskip("rosbags.typesys")
+pytest.importorskip("rosbags.typesys")
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def pose_of(t, q) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [t.x, t.y, t.z]
-    return T
 
 
 @pytest.fixture(scope="module")
@@ -36,23 +29,8 @@ def track(tmp_path_factory) -> Path:
     return out / "track.mcap"
 
 
-def read_all(path: Path) -> list[tuple[str, str, int, object]]:
-    """(topic, schema name, log time, message) decoded by rosbags from each schema's own text."""
-    store = rosbags_typesys.get_typestore(rosbags_typesys.Stores.EMPTY)
-    out = []
-    with open(path, "rb") as fh:
-        reader = make_reader(fh)
-        for schema in reader.get_summary().schemas.values():
-            assert schema.encoding == "ros2msg"
-            store.register(rosbags_typesys.get_types_from_msg(schema.data.decode(), schema.name))
-        for schema, channel, message in reader.iter_messages():
-            assert channel.message_encoding == "cdr"
-            out.append((channel.topic, schema.name, message.log_time, store.deserialize_cdr(message.data, schema.name)))
-    return out
-
-
 def test_every_message_decodes_with_independent_readers(track):
-    msgs = read_all(track)
+    msgs = decode_track(track)
     topics = {t for t, *_ in msgs}
     assert topics == {"/tf", "/mvtop/object_model", "/mvtop/object_pose", "/mvtop/object_pose_ee", "/mvtop/particles"}
     # mcap_ros2 decodes the same bytes too
@@ -62,7 +40,7 @@ def test_every_message_decodes_with_independent_readers(track):
 
 
 def test_every_frame_connects_to_world_at_every_stamp(track):
-    msgs = read_all(track)
+    msgs = decode_track(track)
     tf: dict[tuple[str, int], tuple[str, np.ndarray]] = {}  # (child, stamp) -> (parent, T_parent_child)
     for topic, _s, _t, m in msgs:
         if topic == "/tf":
@@ -94,7 +72,7 @@ def test_every_frame_connects_to_world_at_every_stamp(track):
 
 
 def test_model_marker_is_the_cad_mesh(track):
-    (marker,) = [m for topic, _s, _t, m in read_all(track) if topic == "/mvtop/object_model"]
+    (marker,) = [m for topic, _s, _t, m in decode_track(track) if topic == "/mvtop/object_model"]
     mesh = load_mesh(ROOT / "configs" / "meshes" / "cube.obj", "m")
     assert marker.type == 11 and marker.frame_locked and marker.header.frame_id == "object_estimate"
     pts = np.array([[p.x, p.y, p.z] for p in marker.points])
@@ -103,6 +81,6 @@ def test_model_marker_is_the_cad_mesh(track):
 
 
 def test_tf_has_world_to_ee_and_world_to_object_estimate(track):
-    pairs = {(tr.header.frame_id, tr.child_frame_id) for topic, _s, _t, m in read_all(track) if topic == "/tf"
+    pairs = {(tr.header.frame_id, tr.child_frame_id) for topic, _s, _t, m in decode_track(track) if topic == "/tf"
              for tr in m.transforms}
     assert pairs == {("world", "ee"), ("world", "object_estimate")}

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _track_decode import decode_track, pose_of
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from scipy.spatial.transform import Rotation
 
 from mvtop_cli.config import load_config
 from mvtop_cli.estimator import Estimator
@@ -23,7 +23,7 @@ from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.pipelines.checkpoint import EstimateInterrupted
 from mvtop_cli.pipelines.estimate import EstimateOptions, apply_options, estimate, log_topics, sensor_topics
 
-rosbags_typesys = pytest.importorskip("rosbags.typesys")
+pytest.importorskip("rosbags.typesys")
 
 ROOT = Path(__file__).resolve().parents[2]
 LOG = ROOT / "sample_logs" / "cube.mcap"
@@ -39,17 +39,7 @@ def stamp(header) -> int:
 
 def read_all(path: Path) -> list[tuple[str, str, object]]:
     """(topic, schema name, message) of every message, decoded by rosbags from the file's schemas."""
-    store = rosbags_typesys.get_typestore(rosbags_typesys.Stores.EMPTY)
-    out = []
-    with open(path, "rb") as fh:
-        reader = make_reader(fh)
-        for schema in reader.get_summary().schemas.values():
-            assert schema.encoding == "ros2msg"
-            store.register(rosbags_typesys.get_types_from_msg(schema.data.decode(), schema.name))
-        for schema, channel, message in reader.iter_messages():
-            assert channel.message_encoding == "cdr"
-            out.append((channel.topic, schema.name, store.deserialize_cdr(message.data, schema.name)))
-    return out
+    return [(topic, schema, msg) for topic, schema, _time, msg in decode_track(path)]
 
 
 @pytest.fixture(scope="module")
@@ -111,10 +101,7 @@ def test_every_image_frame_connects_to_world_at_its_stamp(runs):
     for t, _s, m in msgs:
         if t == "/tf":
             for tr in m.transforms:
-                q, p = tr.transform.rotation, tr.transform.translation
-                T = np.eye(4)
-                T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-                T[:3, 3] = [p.x, p.y, p.z]
+                T = pose_of(tr.transform.translation, tr.transform.rotation)
                 tf[(tr.child_frame_id, stamp(tr.header))] = (tr.header.frame_id, T)
     cfg = load_config(CONFIG)
     with McapLog(LOG) as log:
