@@ -137,7 +137,7 @@ class ParticleFilter:
         self.collapse_retry_iterations = int(collapse_retry_iterations)
         self.fold = fold
         self.smc = TemperedRefinement(
-            resampling, rng, iterations=max(self.refine_iterations, 1), shrink=self.refine_shrink,
+            resampling, rng, shrink=self.refine_shrink,
             floor_translation_m=self.floor_translation_m, floor_rotation_rad=self.floor_rotation_rad,
             target_ess_fraction=self.refine_target_ess_fraction, collapse_threshold=self.collapse_threshold,
             collapse_retry_iterations=self.collapse_retry_iterations, fold=fold,

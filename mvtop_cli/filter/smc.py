@@ -185,8 +185,6 @@ class TemperedRefinement:
       Registered resampling scheme name, used between tempering stages.
     rng : numpy.random.Generator
       The filter's generator (one object: same seed, same results).
-    iterations : int
-      Default number of iterations (tempering stages plus Metropolis sweeps).
     shrink : float in (0, 1)
       Default proposal-scale adaptation factor.
     floor_translation_m, floor_rotation_rad : float
@@ -209,7 +207,6 @@ class TemperedRefinement:
         resampling: str,
         rng: np.random.Generator,
         *,
-        iterations: int,
         shrink: float,
         floor_translation_m: float,
         floor_rotation_rad: float,
@@ -221,7 +218,6 @@ class TemperedRefinement:
         check_shrink(shrink)
         self.resampling = resampling
         self.rng = rng
-        self.iterations = int(iterations)
         self.shrink = float(shrink)
         self.floor_translation_m = float(floor_translation_m)
         self.floor_rotation_rad = float(floor_rotation_rad)
@@ -234,7 +230,7 @@ class TemperedRefinement:
         self,
         particles: ParticleSet,
         log_likelihood_fn: LogLikelihoodFn,
-        iterations: int | None = None,
+        iterations: int,
         shrink: float | None = None,
     ) -> StepResult:
         """Annealed update: the same posterior as ``update``, reached by a tempered SMC
@@ -278,7 +274,7 @@ class TemperedRefinement:
         from where the prior puts particles: a peak much narrower than the prior with a
         flat likelihood around it is found only by chance.
         """
-        iterations = self.iterations if iterations is None else int(iterations)
+        iterations = int(iterations)
         if iterations < 1:
             raise ValueError(f"refine needs iterations >= 1, got {iterations!r}")
         shrink = self.shrink if shrink is None else float(shrink)
