@@ -149,6 +149,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         from .baselines.chsel_runner import require
 
         require()  # a missing extra stops here, before any run, with the pip command
+    engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     jobs = []
     # grasp-major order, so a partial (interrupted) benchmark holds the same grasps of every
@@ -180,7 +181,6 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                          "(expected runs/*/result.json, or --import-results FILE)")
     if progress is not None:
         progress(done, len(jobs))
-    engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     t0 = time.perf_counter()
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
