@@ -336,6 +336,9 @@ class OutputConfig:
         1e-6, 0.1, doc="the evidence diagnostic moves the estimate this far along each axis (estimator/evidence.py)"))
     evidence_step_rotation_deg: float = field(default=0.5, metadata=_rng(
         1e-4, 90.0, doc="... and turns it this far about each axis"))
+    covariance: Literal["particles", "particles_and_evidence"] = field(default="particles_and_evidence", metadata={
+        "doc": "the reported covariance: the particles' spread alone, or plus the likelihood's widths at the "
+               "estimate (estimator/evidence.py; the grasp prior's spread on an axis the evidence does not pin)"})
 
 
 @dataclass(frozen=True)

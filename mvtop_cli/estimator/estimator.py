@@ -29,7 +29,7 @@ from ..filter.pf import ParticleFilter
 from ..filter.result import StepResult
 from ..filter.search import cross_entropy_search, local_search, tempered_resample
 from ..records import Frame
-from .evidence import EvidenceReport, likelihood_widths
+from .evidence import EvidenceReport, evidence_covariance, likelihood_widths
 from .likelihood import Likelihood
 from .motion import MotionModel
 from .observation import ObservationModel
@@ -183,12 +183,17 @@ class Estimator:
 
         self.particles = result.particles
         est = result.estimate
+        covariance = result.spread.covariance
+        if evidence is not None and self.cfg.output.covariance == "particles_and_evidence":
+            # the particles can collapse further than the evidence supports (tempering, resampling):
+            # the reported covariance adds what the likelihood itself leaves open about the estimate
+            covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma)
         n = len(result.particles.poses)
         keep = self.rng.choice(n, size=min(self.cfg.output.track_particles, n), replace=False)
         keep.sort()
         return FrameEstimate(
             index=frame.index, stamp_ns=frame.stamp_ns, T_ee_object=est, T_world_object=frame.T_world_ee @ est,
-            covariance=result.spread.covariance, ess=float(result.ess), contact=frame.contact,
+            covariance=covariance, ess=float(result.ess), contact=frame.contact,
             sensors=tuple(observation.sensors), flags=tuple(flags), mask_mode=observation.mask_mode,
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,

@@ -84,3 +84,12 @@ def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_o
     if not np.isfinite(centre):
         sigma = np.full(6, np.inf)
     return float(centre), sigma
+
+
+def evidence_covariance(likelihood_sigma: np.ndarray, prior_sigma: np.ndarray) -> np.ndarray:
+    """The covariance (6, 6) the evidence alone supports about the estimate: the likelihood's
+    widths (6,) squared on the diagonal, an axis it does not pin (``inf``) taking the grasp
+    prior's standard deviation ``prior_sigma`` (6,) instead (the evidence leaves the prior's
+    spread there). Added to the particles' covariance for the reported one (``output.covariance``)."""
+    sigma = np.where(np.isfinite(likelihood_sigma), likelihood_sigma, np.asarray(prior_sigma, dtype=np.float64))
+    return np.diag(np.minimum(sigma, prior_sigma) ** 2)

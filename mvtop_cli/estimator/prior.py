@@ -101,6 +101,14 @@ class GraspPriorModel:
         self.T_ee_object_nominal = prior.pose.matrix()
         self.search_bound = float(search_bound)
 
+    @property
+    def sigma(self) -> np.ndarray:
+        """The prior's standard deviation (6,) per ee axis: x, y, z [m], rx, ry, rz [rad] (a
+        uniform box's half-width over sqrt 3)."""
+        g = self.prior
+        k = 1.0 / np.sqrt(3.0) if g.distribution == "uniform" else 1.0
+        return k * np.array([g.translation_m] * 3 + [np.radians(g.rotation_deg)] * 3)
+
     def sample(self, n: int, rng: np.random.Generator) -> ParticleSet:
         """``n`` equally weighted particles ``T_ee_object`` drawn from the prior."""
         g = self.prior

@@ -52,3 +52,17 @@ def test_an_estimate_in_a_trough_reads_as_unpinned():
 
     _, widths = likelihood_widths(bowl, T0, 5e-4, np.radians(0.5))
     assert np.isinf(widths[0])
+
+
+def test_evidence_covariance_takes_the_prior_where_the_likelihood_is_flat_and_never_exceeds_it():
+    from mvtop_cli.config import GraspPrior
+    from mvtop_cli.estimator.evidence import evidence_covariance
+    from mvtop_cli.estimator.prior import GraspPriorModel
+
+    prior = GraspPriorModel(GraspPrior(translation_m=0.003, rotation_deg=10.0), 2.0).sigma
+    np.testing.assert_allclose(prior, [0.003 / np.sqrt(3)] * 3 + [np.radians(10.0) / np.sqrt(3)] * 3)
+    widths = np.array([2e-4, np.inf, 0.01, np.radians(0.3), np.radians(0.3), np.inf])
+    cov = evidence_covariance(widths, prior)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [2e-4, prior[1], prior[2], np.radians(0.3), np.radians(0.3),
+                                                       prior[5]])
+    assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
