@@ -130,13 +130,14 @@ TRACK_CSV_HEADER = ("frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m
 
 
 def _evidence_cells(r: FrameEstimate) -> list[str]:
-    """The evidence diagnostic's track.csv cells (empty without evidence; ``inf`` where the
-    likelihood is flat along an axis)."""
+    """The evidence diagnostic's track.csv cells: empty without evidence, and a width left empty
+    where the likelihood does not pin some axis (the track holds no nan or inf)."""
     ev = r.evidence
     if ev is None:
         return ["", "", ""]
     iou = "" if ev.min_iou is None else f"{ev.min_iou:.4f}"
-    return [iou, f"{ev.sigma_translation_m:.9f}", f"{ev.sigma_rotation_deg:.6f}"]
+    st, sr = ev.sigma_translation_m, ev.sigma_rotation_deg
+    return [iou, f"{st:.9f}" if np.isfinite(st) else "", f"{sr:.6f}" if np.isfinite(sr) else ""]
 
 
 def track_csv_row(r: FrameEstimate) -> str:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -41,8 +42,9 @@ def test_recorded_masks_estimate_within_the_sample_log_tolerance(masked_log, tmp
     final = summary["final"]
     assert final["ground_truth_translation_error_mm"] < 1.0, final
     assert final["ground_truth_rotation_error_deg"] < 1.0, final
-    rows = (tmp_path / "out" / "track.csv").read_text().splitlines()
-    assert len(rows) == 13 and all(r.split(",")[20] == "recorded" for r in rows[1:])
+    with open(tmp_path / "out" / "track.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 12 and all(r["mask_mode"] == "recorded" for r in rows)
 
 
 def test_inspect_lists_the_mask_topics_as_required(masked_log):
