@@ -752,6 +752,59 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     click.echo(f"wrote {out_dir}/summary.md and summary.html ({summary['seconds_this_run']:.0f} s in this run)")
 
 
+@benchmark_group.command("insertion")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Benchmark folder (runs are kept there; running again resumes).")
+@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
+              "with --object-file unless given).")
+@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Also benchmark your own part, described by this object file (repeat for several).")
+@click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
+@click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
+              help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact).")
+@click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
+              help="Descents per grasp: after a stalled one the robot backs off, re-aligns and retries.")
+@particles_option()
+@click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
+@click.option("--keep-logs", is_flag=True, help="Write every attempt as an MCAP log (OUT/runs/RUN/logs/).")
+@click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
+              "finished; make no new run.")
+@click.option("--ray", "ray_address", metavar="ADDRESS",
+              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
+                   "writes into --out, which must be on a file system they share.")
+def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
+                            methods: str, attempts: int, particles: int | None, workers: int, keep_logs: bool,
+                            summary_only: bool, ray_address: str | None) -> None:
+    """The paper's Table I in closed loop: every object x grasp x method is inserted in the
+    simulator, the robot aligning the estimated object pose with the receptacle and retrying
+    after a stalled descent; prints the success rates (per object and method, and their
+    average), attempts and time to insert, and writes them to OUT/summary.md and summary.json;
+    OUT/results.jsonl.gz keeps every finished run."""
+    from .benchmarks.insertion import METHODS, InsertionBenchmarkOptions, format_table, run_insertion_benchmark
+    from .sim.object_file import load_object_file
+    from .sim.objects import get_object, list_objects
+
+    objs = tuple(o.strip() for o in objects.split(",")) if objects else () if object_files else tuple(list_objects())
+    for o in objs:
+        get_object(o)
+    files = tuple((load_object_file(f).name, str(f.resolve())) for f in object_files)
+    clash = sorted({n for n, _ in files if n in objs or [m for m, _ in files].count(n) > 1})
+    if clash:
+        raise MvtopError(f"--object-file: object name {clash[0]!r} is used twice (object names name the runs)")
+    objs += tuple(n for n, _ in files)
+    meths = tuple(m.strip() for m in methods.split(","))
+    bad = [m for m in meths if m not in METHODS]
+    if bad:
+        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
+    options = InsertionBenchmarkOptions(objects=objs, poses=poses, methods=meths, attempts=attempts,
+                                        particles=particles, workers=workers, object_files=files,
+                                        keep_logs=keep_logs, summary_only=summary_only, ray=ray_address)
+    with _progress("benchmark insertion") as update:
+        summary = run_insertion_benchmark(out_dir, options, progress=update)
+    click.echo(format_table(summary))
+    click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_run']:.0f} s in this run)")
+
+
 @benchmark_group.command("long-log")
 @click.option("--size-gb", type=click.FloatRange(0.01, 100), default=2.0, show_default=True,
               help="Size of the simulated log [GB, 1e9 bytes].")
