@@ -74,6 +74,7 @@ def run_jobs(fn: Callable, todo: list[tuple[Hashable, Path]], args_of: Callable[
 
 def write_result(run_dir: Path, report: dict) -> None:
     """A run's ``result.json`` (atomically: a run counts as finished only once it is whole)."""
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
     with atomic_output(Path(run_dir) / RESULT_FILE, "w") as fh:
         json.dump(report, fh)
 
