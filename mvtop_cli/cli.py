@@ -767,6 +767,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--keep-logs", is_flag=True, help="Write every attempt as an MCAP log (OUT/runs/RUN/logs/).")
+@click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="results.jsonl.gz of another insertion benchmark folder: its runs count as done here.")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished; make no new run.")
 @click.option("--ray", "ray_address", metavar="ADDRESS",
@@ -774,7 +776,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
                    "writes into --out, which must be on a file system they share.")
 def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
                             methods: str, attempts: int, particles: int | None, workers: int, keep_logs: bool,
-                            summary_only: bool, ray_address: str | None) -> None:
+                            import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """The paper's Table I in closed loop: every object x grasp x method is inserted in the
     simulator, the robot aligning the estimated object pose with the receptacle and retrying
     after a stalled descent; prints the success rates (per object and method, and their
@@ -798,7 +800,8 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
     options = InsertionBenchmarkOptions(objects=objs, poses=poses, methods=meths, attempts=attempts,
                                         particles=particles, workers=workers, object_files=files,
-                                        keep_logs=keep_logs, summary_only=summary_only, ray=ray_address)
+                                        keep_logs=keep_logs, import_results=import_results,
+                                        summary_only=summary_only, ray=ray_address)
     with _progress("benchmark insertion") as update:
         summary = run_insertion_benchmark(out_dir, options, progress=update)
     click.echo(format_table(summary))

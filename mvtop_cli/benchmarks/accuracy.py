@@ -19,7 +19,6 @@ benchmark across machines. ``OUT/invocations.jsonl`` records each invocation's w
 
 from __future__ import annotations
 
-import gzip
 import html
 import json
 import os
@@ -38,6 +37,8 @@ from .runs import (
     append_invocation,
     code_fingerprint,
     finished_runs,
+    import_records,
+    read_jsonl,
     run_jobs,
     totals,
     write_jsonl_gz,
@@ -149,7 +150,8 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                 jobs.append((obj, seed, method, run_dir))
     imported = 0
     if options.import_results is not None:
-        imported = _import_results(Path(options.import_results), jobs)
+        imported = import_records(Path(options.import_results), read_results(Path(options.import_results)),
+                                  [(j[:3], j[3]) for j in jobs])
     reports, todo = finished_runs([(job[:3], job[3]) for job in jobs])
     if options.summary_only:
         todo = []
@@ -217,21 +219,8 @@ def write_results(path: Path, reports: dict[tuple, dict]) -> None:
 def read_results(path: Path) -> list[dict]:
     """The records of a ``results.jsonl.gz`` (or plain ``.jsonl``); a damaged file or record
     is an error naming the file and line."""
-    try:
-        raw = path.read_bytes()
-        text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("utf-8")
-    except FileNotFoundError:
-        raise MvtopError(f"{path}: results file not found (expected an {RESULTS_FILE} of a benchmark folder)") from None
-    except (OSError, EOFError, UnicodeDecodeError) as e:
-        raise MvtopError(f"{path}: not a readable results file ({e})") from None
     records = []
-    for n, line in enumerate(text.splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise MvtopError(f"{path} line {n}: not JSON ({e.msg})") from None
+    for n, rec in read_jsonl(path, RESULTS_FILE):
         b = rec.get("benchmark") if isinstance(rec, dict) else None
         f = rec.get("final") if isinstance(rec, dict) else None
         if (not isinstance(b, dict) or not isinstance(f, dict) or not all(k in b for k in ("object", "seed", "method"))
@@ -240,23 +229,6 @@ def read_results(path: Path) -> list[dict]:
                              "and final.insertable/translation_error_mm")
         records.append(rec)
     return records
-
-
-def _import_results(path: Path, jobs: list[tuple]) -> int:
-    """Write the records of ``path`` that match a job without a result yet as that job's
-    result.json; returns how many were imported."""
-    wanted = {(o, s, m): d for o, s, m, d in jobs}
-    count = 0
-    for rec in read_results(path):
-        b = rec["benchmark"]
-        run_dir = wanted.get((b["object"], b["seed"], b["method"]))
-        if run_dir is None or (run_dir / "result.json").is_file():
-            continue
-        run_dir.mkdir(parents=True, exist_ok=True)
-        with atomic_output(run_dir / "result.json", "w") as fh:
-            json.dump({**rec, "imported_from": str(path)}, fh)
-        count += 1
-    return count
 
 
 def final_errors(reports: dict[tuple, dict], objects, methods) -> dict:

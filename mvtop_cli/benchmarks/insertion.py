@@ -32,7 +32,17 @@ import numpy as np
 from ..errors import MvtopError
 from ..io.atomic import atomic_output
 from .accuracy import MODALITY_SETS
-from .runs import append_invocation, code_fingerprint, finished_runs, run_jobs, totals, write_jsonl_gz, write_result
+from .runs import (
+    append_invocation,
+    code_fingerprint,
+    finished_runs,
+    import_records,
+    read_jsonl,
+    run_jobs,
+    totals,
+    write_jsonl_gz,
+    write_result,
+)
 
 METHODS = tuple(MODALITY_SETS)
 RESULTS_FILE = "results.jsonl.gz"
@@ -50,6 +60,7 @@ class InsertionBenchmarkOptions:
     first_seed: int = 1000
     object_files: tuple[tuple[str, str], ...] = ()  # (name, object file path) of objects in ``objects``
     keep_logs: bool = False  # write every attempt as an MCAP log
+    import_results: Path | None = None  # a results.jsonl.gz of another benchmark folder
     summary_only: bool = False  # tables over the finished runs; no run is made
     ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
 
@@ -109,12 +120,16 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     # grasp-major order, so a partial benchmark holds the same grasps of every object and method
     jobs = [((obj, options.first_seed + i, method), out_dir / "runs" / f"{obj}_{options.first_seed + i}_{method}")
             for i in range(options.poses) for obj in options.objects for method in options.methods]
+    imported = 0
+    if options.import_results is not None:
+        path = Path(options.import_results)
+        imported = import_records(path, read_results(path), jobs)
     reports, todo = finished_runs(jobs)
     if options.summary_only:
         todo = []
         if not reports:
             raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
-                             "(expected runs/*/result.json)")
+                             "(expected runs/*/result.json, or --import-results FILE)")
     stale = sorted({r["benchmark"]["attempts_allowed"] for r in reports.values()} - {options.attempts})
     if stale:
         raise MvtopError(f"{out_dir}: its runs were made with --attempts {stale[0]}, not {options.attempts} "
@@ -127,10 +142,11 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
 
     seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), options.workers, options.ray, progress)
     if not options.summary_only:
-        append_invocation(out_dir, options.workers, len(todo), 0, seconds)
+        append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
                "attempts": options.attempts, "seconds_this_run": round(seconds, 1), "runs": len(reports),
-               "runs_requested": len(jobs), "totals": totals(out_dir, reports), "table": {}}
+               "runs_requested": len(jobs), "imported_this_run": imported, "totals": totals(out_dir, reports),
+               "table": {}}
     for method in options.methods:
         for obj in options.objects:
             rs = [r for (o, _s, m), r in reports.items() if o == obj and m == method]
@@ -142,6 +158,22 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     with atomic_output(out_dir / "summary.md", "w") as fh:
         fh.write(format_table(summary))
     return summary
+
+
+def read_results(path: Path) -> list[dict]:
+    """The records of an insertion benchmark's ``results.jsonl.gz``; a damaged file or record
+    is an error naming the file and line."""
+    records = []
+    for n, rec in read_jsonl(path, RESULTS_FILE):
+        b = rec.get("benchmark") if isinstance(rec, dict) else None
+        i = rec.get("insertion") if isinstance(rec, dict) else None
+        if (not isinstance(b, dict) or not isinstance(i, dict) or rec.get("schema") != SCHEMA
+                or not all(k in b for k in ("object", "seed", "method", "attempts_allowed"))
+                or not all(k in i for k in ("success", "attempts", "per_attempt"))):
+            raise MvtopError(f"{path} line {n}: expected an insertion record ({SCHEMA}) with benchmark.object/seed/"
+                             "method/attempts_allowed and insertion.success/attempts/per_attempt")
+        records.append(rec)
+    return records
 
 
 def aggregate(reports: list[dict]) -> dict:

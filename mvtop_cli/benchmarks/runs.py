@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable, Hashable
 
 from ..batch.engine import make_engine
+from ..errors import MvtopError
 from ..io.atomic import atomic_output
 
 INVOCATIONS_FILE = "invocations.jsonl"
@@ -120,3 +121,41 @@ def write_jsonl_gz(path: Path, records: list[dict]) -> None:
     with atomic_output(path, "wb") as fh:
         with gzip.GzipFile(fileobj=fh, mode="wb", mtime=0, filename="") as gz:
             gz.write(data)
+
+
+def read_jsonl(path: Path, expected: str) -> list[tuple[int, object]]:
+    """(line number, JSON value) of every non-empty line of a gzip'ed or plain JSON-lines file;
+    a missing or damaged file, or a line that is not JSON, is an error naming the file (and
+    line). ``expected``: the file name to suggest when it is missing."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+        text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("utf-8")
+    except FileNotFoundError:
+        raise MvtopError(f"{path}: results file not found (expected an {expected} of a benchmark folder)") from None
+    except (OSError, EOFError, UnicodeDecodeError) as e:
+        raise MvtopError(f"{path}: not a readable results file ({e})") from None
+    out = []
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            out.append((n, json.loads(line)))
+        except json.JSONDecodeError as e:
+            raise MvtopError(f"{path} line {n}: not JSON ({e.msg})") from None
+    return out
+
+
+def import_records(path: Path, records: list[dict], jobs: list[tuple[Hashable, Path]]) -> int:
+    """Write each record (with ``benchmark.object/seed/method``) that matches a job without a
+    result yet as that job's result.json, noting ``imported_from``; returns how many."""
+    wanted = dict(jobs)
+    count = 0
+    for rec in records:
+        b = rec["benchmark"]
+        run_dir = wanted.get((b["object"], b["seed"], b["method"]))
+        if run_dir is None or (Path(run_dir) / RESULT_FILE).is_file():
+            continue
+        write_result(run_dir, {**rec, "imported_from": str(path)})
+        count += 1
+    return count

@@ -39,6 +39,13 @@ def test_benchmark_insertion_runs_tabulates_and_resumes(tmp_path):
     other = run("benchmark", "insertion", "--out", str(out), "--objects", "conn2", "--poses", "1", "--methods",
                 "M-TOP", "--attempts", "3", "--summary-only")
     assert other.returncode != 0 and "made with --attempts 2, not 3" in other.stderr
+    elsewhere = tmp_path / "elsewhere"  # the results file carries the runs to another folder
+    moved = run("benchmark", "insertion", "--out", str(elsewhere), "--objects", "conn2", "--poses", "1", "--methods",
+                "M-TOP", "--attempts", "2", "--summary-only", "--import-results", str(out / "results.jsonl.gz"))
+    assert moved.returncode == 0, moved.stderr
+    table = (out / "summary.md").read_text().split("\n", 1)[1]  # below the line naming the code versions
+    assert table == (elsewhere / "summary.md").read_text().split("\n", 1)[1]
+    assert (elsewhere / "results.jsonl.gz").read_bytes() != b""
 
 
 def test_benchmark_insertion_rejects_an_unknown_method(tmp_path):
@@ -46,3 +53,11 @@ def test_benchmark_insertion_rejects_an_unknown_method(tmp_path):
     assert proc.returncode != 0
     assert "--methods: unknown CHSEL (expected M-VTOP, M-VOP, M-TOP)" in proc.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_benchmark_insertion_refuses_a_damaged_results_file(tmp_path):
+    bad = tmp_path / "results.jsonl"
+    bad.write_text('{"benchmark": {"object": "cube"}}\n')
+    proc = run("benchmark", "insertion", "--out", str(tmp_path / "b"), "--summary-only", "--import-results", str(bad))
+    assert proc.returncode != 0
+    assert f"{bad} line 1: expected an insertion record (mvtop-insertion/1)" in proc.stderr
