@@ -46,8 +46,9 @@ class InsertionOptions:
 
 def filter_estimator(cfg: Config, states: dict[int, EpisodeState]) -> PoseEstimator:
     """The M-VTOP filter (``Estimator.from_config(cfg)``) as the controller's estimator: it sees
-    the frame only. ``states`` maps a stamp to the robot's state then (filled by the sensors),
-    from which the finger frames' TF is answered, as a log's TF would."""
+    the frame only, and of it the sensors of the config's modalities. ``states`` maps a stamp
+    to the robot's state then (filled by the sensors), from which the finger frames' TF is
+    answered, as a log's TF would."""
 
     def frame_pose(tf_frame: str, stamp_ns: int) -> np.ndarray:
         side = tf_frame.removeprefix("finger_")
@@ -57,8 +58,13 @@ def filter_estimator(cfg: Config, states: dict[int, EpisodeState]) -> PoseEstima
         return st.T_world_ee @ grip.finger_poses(st.finger_opening_m)[side]
 
     estimator = Estimator.from_config(cfg, frame_pose)
+    # the sensors of the method's modalities, as ``mvtop estimate`` reads them (``sensor_topics``)
+    cameras = {c.name for c in cfg.sensors.cameras} if "vision" in cfg.modalities else set()
+    tactile = {t.name for t in cfg.sensors.tactile} if "tactile" in cfg.modalities else set()
 
     def estimate(frame: Frame, truth: EpisodeState) -> np.ndarray:
+        frame = replace(frame, cameras={k: v for k, v in frame.cameras.items() if k in cameras},
+                        tactile={k: v for k, v in frame.tactile.items() if k in tactile})
         return estimator.step(frame).T_ee_object
 
     return estimate

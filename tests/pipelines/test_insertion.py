@@ -4,8 +4,10 @@ kept log gives back, every attempt is a log, and the filter in the loop is deter
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from mvtop_cli.config import load_config
 from mvtop_cli.geometry import se3
@@ -64,3 +66,23 @@ def test_filter_in_the_loop_same_seed_same_result(tmp_path):
     assert all(np.array_equal(x.T_world_ee, y.T_world_ee) for x, y in zip(a.states, b.states))
     assert 1 <= len(a.attempts) <= 2
     assert a.attempts[0].align_error_m < 0.003  # the filter, not the nominal grasp, placed the part
+
+
+@pytest.mark.parametrize("modalities, cameras, tactile", [
+    (("vision",), {"front", "side"}, set()),
+    (("tactile", "contact"), set(), {"left", "right"}),
+])
+def test_the_filter_sees_only_the_sensors_of_its_modalities(tmp_path, monkeypatch, modalities, cameras, tactile):
+    import mvtop_cli.pipelines.insertion as ins
+
+    cfg = method_config(load_config(write_scene_config("conn2", tmp_path / "config.yaml")), modalities, 30, 1)
+    seen = []
+
+    def step(self, frame):
+        seen.append((set(frame.cameras), set(frame.tactile)))
+        return SimpleNamespace(T_ee_object=cfg.grasp_prior.pose.matrix())
+
+    monkeypatch.setattr(ins.Estimator, "step", step)
+    result = insert("conn2", 1, cfg, replace(SMALL, controller=ControllerOptions(attempts=1)))
+    assert len(seen) == result.frames and set(map(frozenset, (c for c, _ in seen))) == {frozenset(cameras)}
+    assert all(t == tactile for _, t in seen)
