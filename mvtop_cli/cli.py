@@ -797,6 +797,9 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
 @click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Also benchmark your own part, described by this object file (repeat for several).")
 @click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
+@click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
+              help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i (another range: grasps the "
+                   "default tables never used).")
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
@@ -813,7 +816,7 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
               help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
                    "writes into --out, which must be on a file system they share.")
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                           methods: str, frames: int, scene: str, particles: int | None, workers: int,
+                           first_seed: int, methods: str, frames: int, scene: str, particles: int | None, workers: int,
                            import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
@@ -827,8 +830,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
-    options = AccuracyOptions(objects=objs, poses=poses, methods=meths, frames=frames, particles=particles,
-                              workers=workers,
+    options = AccuracyOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths, frames=frames,
+                              particles=particles, workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
                               ray=ray_address, scene=scene)
     with _progress("benchmark accuracy") as update:
@@ -845,6 +848,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 @click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Also benchmark your own part, described by this object file (repeat for several).")
 @click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
+@click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
+              help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i.")
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact).")
 @click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
@@ -861,8 +866,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
               help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
                    "writes into --out, which must be on a file system they share.")
 def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                            methods: str, attempts: int, scene: str, particles: int | None, workers: int,
-                            keep_logs: bool, import_results: Path | None, summary_only: bool,
+                            first_seed: int, methods: str, attempts: int, scene: str, particles: int | None,
+                            workers: int, keep_logs: bool, import_results: Path | None, summary_only: bool,
                             ray_address: str | None) -> None:
     """The paper's Table I in closed loop: every object x grasp x method is inserted in the
     simulator, the robot aligning the estimated object pose with the receptacle and retrying
@@ -876,7 +881,8 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
     bad = [m for m in meths if m not in METHODS]
     if bad:
         raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
-    options = InsertionBenchmarkOptions(objects=objs, poses=poses, methods=meths, attempts=attempts,
+    options = InsertionBenchmarkOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths,
+                                        attempts=attempts,
                                         particles=particles, workers=workers, object_files=files,
                                         keep_logs=keep_logs, import_results=import_results,
                                         summary_only=summary_only, ray=ray_address, scene=scene)

@@ -332,6 +332,10 @@ class OutputConfig:
     """What the track files hold beyond the estimates."""
 
     track_particles: int = field(default=200, metadata=_rng(0, 1_000_000, doc="particles per frame in track.mcap"))
+    evidence_step_translation_m: float = field(default=0.0005, metadata=_rng(
+        1e-6, 0.1, doc="the evidence diagnostic moves the estimate this far along each axis (estimator/evidence.py)"))
+    evidence_step_rotation_deg: float = field(default=0.5, metadata=_rng(
+        1e-4, 90.0, doc="... and turns it this far about each axis"))
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,8 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import re
+import socket
 import sys
 from dataclasses import dataclass
 from multiprocessing import forkserver
@@ -32,6 +34,9 @@ from ..errors import MvtopError
 MAX_RETRIES = 3
 # Seconds between two looks at the finished Ray tasks (the driver sleeps in between).
 _RAY_WAIT_S = 0.5
+# Seconds to wait for a Ray cluster's address to accept a connection before giving up (ray.init
+# itself retries an unreachable address for many minutes).
+_RAY_CONNECT_TIMEOUT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -176,6 +181,8 @@ class RayEngine:
 
     def __init__(self, address: str, num_cpus: int | None = None, cpus_per_job: int = 1,
                  max_retries: int = MAX_RETRIES):
+        # an address nobody listens on: one line now, before any output is written
+        _check_reachable(address if address != "auto" else os.environ.get("RAY_ADDRESS", "auto"))
         self.address = address
         self.num_cpus = num_cpus
         self.cpus_per_job = cpus_per_job
@@ -229,6 +236,23 @@ class RayEngine:
             if self._started:
                 ray.shutdown()
                 self._started = False
+
+
+def _check_reachable(address: str, timeout_s: float = _RAY_CONNECT_TIMEOUT_S) -> None:
+    """Raise one line when a ``HOST:PORT`` (or ``ray://HOST:PORT``) Ray address accepts no TCP
+    connection within ``timeout_s``; other forms (``auto``) are left to Ray."""
+    match = re.fullmatch(r"(?:ray://)?\[?([^\[\]/]+?)\]?:(\d+)", address.strip())
+    if match is None:
+        return
+    host, port = match.group(1), int(match.group(2))
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return
+    except OSError as err:
+        reason = "timed out" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
+        raise MvtopError(f"--ray {address}: cannot reach a Ray cluster there ({reason} after at most "
+                         f"{timeout_s:g} s); check the address and that `ray start --head` runs on that "
+                         "machine, or use --ray local") from None
 
 
 def require_ray():

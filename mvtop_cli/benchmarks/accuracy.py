@@ -29,6 +29,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..batch.engine import make_engine
 from ..durations import format_duration
 from ..errors import MvtopError
 from ..eval import report as R
@@ -143,6 +144,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         from .baselines.chsel_runner import require
 
         require()  # a missing extra stops here, before any run, with the pip command
+    engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     jobs = []
     # grasp-major order, so a partial (interrupted) benchmark holds the same grasps of every
@@ -172,8 +174,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         o, s, m = key
         return (o, s, m, str(run_dir), options.frames, options.particles, threads, files.get(o), options.scene)
 
-    # local processes or Ray tasks (batch/engine.py)
-    seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), options.workers, options.ray, progress)
+    seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),

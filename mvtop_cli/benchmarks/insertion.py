@@ -31,6 +31,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..batch.engine import make_engine
 from ..errors import MvtopError
 from ..io.atomic import atomic_output
 from .accuracy import MODALITY_SETS
@@ -123,6 +124,7 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
         raise MvtopError(f"methods: unknown {', '.join(unknown)} (expected {', '.join(METHODS)})")
     if options.attempts < 1:
         raise MvtopError(f"attempts: expected at least 1, got {options.attempts}")
+    engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     # grasp-major order, so a partial benchmark holds the same grasps of every object and method
     jobs = [((obj, options.first_seed + i, method), out_dir / "runs" / f"{obj}_{options.first_seed + i}_{method}")
@@ -149,7 +151,7 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
         return (o, s, m, str(run_dir), options.particles, options.attempts, options.keep_logs, threads, files.get(o),
                 options.scene)
 
-    seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), options.workers, options.ray, progress)
+    seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),

@@ -18,7 +18,6 @@ from collections import Counter
 from pathlib import Path
 from typing import Callable, Hashable
 
-from ..batch.engine import make_engine
 from ..errors import MvtopError
 from ..io.atomic import atomic_output
 
@@ -68,17 +67,16 @@ def check_scene(out_dir: Path, reports: dict, scene: str) -> None:
 
 
 def run_jobs(fn: Callable, todo: list[tuple[Hashable, Path]], args_of: Callable[[Hashable, Path, int], tuple],
-             reports: dict, total: int, workers: int = 1, ray: str | None = None,
-             progress: Callable[[int, int], None] | None = None) -> float:
-    """Run ``fn(*args_of(key, run_dir, threads))`` for every job in ``todo`` on the batch
-    engine (``workers`` local processes, or Ray tasks with ``ray``) and put each returned
-    report into ``reports`` under its key; ``fn`` writes the run's ``result.json`` itself. A
-    run's error stops the benchmark (the finished runs stay). ``progress(done, total)`` after
-    each run and once at the start. Returns the wall time [s]."""
+             reports: dict, total: int, engine, progress: Callable[[int, int], None] | None = None) -> float:
+    """Run ``fn(*args_of(key, run_dir, threads))`` for every job in ``todo`` on ``engine``
+    (``batch.engine.make_engine``: local processes or Ray tasks; the caller makes it before
+    any output, so that an unreachable cluster stops the benchmark before its folder exists)
+    and put each returned report into ``reports`` under its key; ``fn`` writes the run's
+    ``result.json`` itself. A run's error stops the benchmark (the finished runs stay).
+    ``progress(done, total)`` after each run and once at the start. Returns the wall time [s]."""
     done = len(reports)
     if progress is not None:
         progress(done, total)
-    engine = make_engine(workers, ray)
     t0 = time.perf_counter()
     args = [args_of(key, run_dir, engine.threads) for key, run_dir in todo]
     for outcome in engine.run(fn, args):

@@ -29,6 +29,7 @@ from ..filter.pf import ParticleFilter
 from ..filter.result import StepResult
 from ..filter.search import cross_entropy_search, local_search, tempered_resample
 from ..records import Frame
+from .evidence import EvidenceReport, likelihood_widths
 from .likelihood import Likelihood
 from .motion import MotionModel
 from .observation import ObservationModel
@@ -63,6 +64,8 @@ class FrameEstimate:
     warnings: tuple[dict, ...] = ()
     # per sensor: IoU of its observed mask with the mask rendered at the estimate
     sensor_iou: dict[str, float] = field(default_factory=dict)
+    # how well the evidence pins the estimate (``evidence.EvidenceReport``); None when nothing was observed
+    evidence: EvidenceReport | None = None
     # the sensor consistency watch after this frame (``Estimator.restore_consistency`` on resume)
     consistency: dict = field(default_factory=dict)
     # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
@@ -169,6 +172,7 @@ class Estimator:
             ))
             flags.append("sensor_downweighted")
         flags = list(dict.fromkeys(flags))
+        evidence = self._evidence(likelihood, result.estimate, sensor_iou, bool(observation.sensors) or bool(contact))
 
         if not first:
             jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(contact))
@@ -187,7 +191,7 @@ class Estimator:
             covariance=result.spread.covariance, ess=float(result.ess), contact=frame.contact,
             sensors=tuple(observation.sensors), flags=tuple(flags), mask_mode=observation.mask_mode,
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
-            warnings=tuple(warnings), sensor_iou=sensor_iou,
+            warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
             timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
                      "filter_s": t_filter - t_masks - self._search_s, "likelihood_s": likelihood.seconds,
@@ -200,6 +204,16 @@ class Estimator:
         (a resumed run then scales the same sensors down at the same frames)."""
         self.consistency.factors = dict(state.get("factors", {}))
         self.consistency.streak = dict(state.get("streak", {}))
+
+    def _evidence(self, likelihood: Likelihood, T_ee_object: np.ndarray, sensor_iou: dict[str, float],
+                  observed: bool) -> EvidenceReport | None:
+        """The frame's evidence diagnostic at the estimate (``evidence``), None without evidence."""
+        if not observed:
+            return None
+        o = self.cfg.output
+        ll, sigma = likelihood_widths(likelihood, T_ee_object, o.evidence_step_translation_m,
+                                      np.radians(o.evidence_step_rotation_deg))
+        return EvidenceReport(dict(sensor_iou), ll, sigma)
 
     # --- the filter update -----------------------------------------------------------------
 

@@ -58,6 +58,7 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         "warnings": warnings,
         "warning_counts": count_warnings(warnings),
         "sensors": sensor_report(agreement, warnings),
+        "evidence": evidence_report(results),
     }
     if last.T_world_object_gt is not None:
         dt = last.T_world_object[:3, 3] - last.T_world_object_gt[:3, 3]
@@ -66,6 +67,21 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
             np.degrees(se3.rotation_angle(last.T_world_object[:3, :3], last.T_world_object_gt[:3, :3]))
         )
     return out
+
+
+def evidence_report(results: list[FrameEstimate]) -> dict:
+    """summary.json's ``evidence``: the final frame's diagnostic in full (per-sensor IoU at the
+    estimate, the likelihood's width per axis, ``estimator/evidence.py``) and, per frame, the
+    worst sensor IoU and the widest translation [m] / rotation [deg] width (null: no evidence,
+    or a flat likelihood)."""
+    def num(v: float | None) -> float | None:
+        return None if v is None or not np.isfinite(v) else float(v)
+
+    frames = [[r.index, num(r.evidence.min_iou), num(r.evidence.sigma_translation_m),
+               num(r.evidence.sigma_rotation_deg)] for r in results if r.evidence is not None]
+    final = next((r.evidence.as_dict() for r in reversed(results) if r.evidence is not None), None)
+    return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg"],
+                                          "rows": frames}}
 
 
 STAGES = ("read_s", "masking_s", "search_s", "filter_s", "likelihood_s", "step_s")
@@ -109,12 +125,25 @@ def warning_report(summary: dict) -> list[str]:
 
 
 TRACK_CSV_HEADER = ("frame,stamp_ns,x_m,y_m,z_m,qx,qy,qz,qw,ee_x_m,ee_y_m,ee_z_m,ee_qx,ee_qy,ee_qz,ee_qw,"
-                    "std_translation_m,std_rotation_deg,ess,contact,mask_mode,flags")
+                    "std_translation_m,std_rotation_deg,ess,contact,"
+                    "evidence_min_iou,evidence_sigma_translation_m,evidence_sigma_rotation_deg,mask_mode,flags")
+
+
+def _evidence_cells(r: FrameEstimate) -> list[str]:
+    """The evidence diagnostic's track.csv cells (empty without evidence; ``inf`` where the
+    likelihood is flat along an axis)."""
+    ev = r.evidence
+    if ev is None:
+        return ["", "", ""]
+    iou = "" if ev.min_iou is None else f"{ev.min_iou:.4f}"
+    return [iou, f"{ev.sigma_translation_m:.9f}", f"{ev.sigma_rotation_deg:.6f}"]
 
 
 def track_csv_row(r: FrameEstimate) -> str:
     """One frame's line of track.csv: pose in world and in ee (metres, quaternion xyzw), RMS
-    spread (translation [m], rotation [deg]), ESS, contact, mask mode and flags."""
+    spread (translation [m], rotation [deg]), ESS, contact, the evidence diagnostic (the worst
+    sensor IoU at the estimate, the likelihood's widest translation [m] and rotation [deg]
+    width, ``estimator/evidence.py``), mask mode and flags."""
     q = se3.to_quat_xyzw(r.T_world_object)
     qe = se3.to_quat_xyzw(r.T_ee_object)
     st = np.sqrt(np.trace(r.covariance[:3, :3]) / 3)
@@ -122,7 +151,8 @@ def track_csv_row(r: FrameEstimate) -> str:
     vals = [*r.T_world_object[:3, 3], *q, *r.T_ee_object[:3, 3], *qe]
     contact = "" if r.contact is None else str(int(r.contact))
     return ",".join([str(r.index), str(r.stamp_ns)] + [f"{v:.9f}" for v in vals]
-                    + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, r.mask_mode, "|".join(r.flags)])
+                    + [f"{st:.9f}", f"{sr:.6f}", f"{r.ess:.2f}", contact, *_evidence_cells(r), r.mask_mode,
+                       "|".join(r.flags)])
 
 
 def write_track(out_dir: Path, results: list[FrameEstimate], cfg: Config, summary: dict) -> None:

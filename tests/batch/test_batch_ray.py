@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import os
+from pathlib import Path
 
 import pytest
 from _batch_logs import assert_same_outputs, kill_worker_after, make_logs, serial_run
@@ -53,3 +54,26 @@ def test_ray_batch_with_a_bad_log_and_a_killed_worker_equals_the_serial_runs(tmp
     for job in jobs[:2]:
         assert rows[job.name]["status"] == "ok" and rows[job.name]["frames"] == "6"
         assert_same_outputs(out / job.name, serial_run(job, tmp_path / "serial"))
+
+
+def test_an_unreachable_cluster_address_is_one_line_not_a_hang():
+    """``ray.init`` retries an address nobody listens on for many minutes; the engine checks the
+    address first and names it (port 9 on this machine: nothing listens there)."""
+    expected = r"^--ray 127\.0\.0\.1:9: cannot reach a Ray cluster there \(.+\); check the address"
+    with pytest.raises(MvtopError, match=expected):
+        RayEngine("127.0.0.1:9")
+
+
+def test_an_unreachable_cluster_writes_nothing(tmp_path, capsys):
+    """The command stops with the one line and exit code 2 before making its output folder."""
+    from mvtop_cli.cli import main
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "out"
+    logs = [str(root / "sample_logs" / f"{name}.mcap") for name in ("cube", "plug")]
+    with pytest.raises(SystemExit) as exited:
+        main(["estimate", *logs, "--config", str(root / "configs" / "cube.yaml"), "--out", str(out),
+              "--ray", "127.0.0.1:9"])
+    assert exited.value.code == 2
+    assert capsys.readouterr().err.startswith("mvtop: error: --ray 127.0.0.1:9: cannot reach a Ray cluster there (")
+    assert not out.exists()

@@ -62,6 +62,18 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert (out / "summary.md").read_text() in again.stdout
 
 
+def test_benchmark_accuracy_first_seed_picks_the_grasps(tmp_path):
+    """--first-seed N runs grasps N, N+1, ...: the runs are named and simulated by those seeds."""
+    out = tmp_path / "bench"
+    proc = run("benchmark", "accuracy", "--out", str(out), "--objects", "conn2", "--poses", "2", "--first-seed", "5000",
+               "--methods", "M-TOP", "--frames", "4", "--particles", "40")
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["conn2_5000_M-TOP", "conn2_5001_M-TOP"]
+    seeds = [json.loads((out / "runs" / f"conn2_{s}_M-TOP" / "result.json").read_text())["benchmark"]["seed"]
+             for s in (5000, 5001)]
+    assert seeds == [5000, 5001]
+
+
 def test_benchmark_accuracy_box_plots_one_box_per_object_and_method(tmp_path):
     import re
 

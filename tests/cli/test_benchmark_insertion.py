@@ -7,6 +7,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 
 def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "mvtop_cli", *args], capture_output=True, text=True, timeout=900)
@@ -61,3 +63,14 @@ def test_benchmark_insertion_refuses_a_damaged_results_file(tmp_path):
     proc = run("benchmark", "insertion", "--out", str(tmp_path / "b"), "--summary-only", "--import-results", str(bad))
     assert proc.returncode != 0
     assert f"{bad} line 1: expected an insertion record (mvtop-insertion/1)" in proc.stderr
+
+
+def test_benchmark_insertion_stops_on_an_unreachable_cluster_before_its_folder(tmp_path):
+    """As ``estimate --ray`` (batch/engine.py): the address is checked before any output (port 9
+    on this machine: nothing listens there)."""
+    pytest.importorskip("ray")
+    out = tmp_path / "b"
+    proc = run("benchmark", "insertion", "--out", str(out), "--objects", "cube", "--poses", "1", "--ray", "127.0.0.1:9")
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("mvtop: error: --ray 127.0.0.1:9: cannot reach a Ray cluster there (")
+    assert not out.exists()

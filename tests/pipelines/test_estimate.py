@@ -22,10 +22,11 @@ OBJECTS = ("cube", "shaft_peg", "plug", "conn1", "conn2")
 TRACK_COLUMNS = [
     "frame", "stamp_ns", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
     "ee_x_m", "ee_y_m", "ee_z_m", "ee_qx", "ee_qy", "ee_qz", "ee_qw",
-    "std_translation_m", "std_rotation_deg", "ess", "contact", "mask_mode", "flags",
+    "std_translation_m", "std_rotation_deg", "ess", "contact",
+    "evidence_min_iou", "evidence_sigma_translation_m", "evidence_sigma_rotation_deg", "mask_mode", "flags",
 ]
 SUMMARY_KEYS = {"log", "object", "modalities", "particles", "seed", "frames_processed", "frames_skipped",
-                "run_time_s", "time_per_frame_s", "final", "flags"}
+                "run_time_s", "time_per_frame_s", "final", "flags", "evidence"}
 
 
 def paths(name: str) -> tuple[Path, Path]:
@@ -123,8 +124,12 @@ def test_output_files_and_columns(tmp_path):
         q = np.array([float(v) for v in row[5:9]])
         assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-6)
         assert row[19] == ""  # contact is not a modality of this run
-        assert row[20] in ("proposals", "prompt")
+        assert row[23] in ("proposals", "prompt")
         assert float(row[16]) >= 0 and float(row[18]) > 0
+        # the evidence diagnostic: every sensor explained (IoU in (0, 1]) and a likelihood that
+        # pins the pose to within a few millimetres / degrees around the estimate
+        assert 0.5 < float(row[20]) <= 1.0
+        assert 0 < float(row[21]) < 0.005 and 0 < float(row[22]) < 5.0
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk == summary
     assert SUMMARY_KEYS <= set(summary)
@@ -133,6 +138,11 @@ def test_output_files_and_columns(tmp_path):
     assert np.isfinite(final["ground_truth_translation_error_mm"])
     assert np.isfinite(final["ground_truth_rotation_error_deg"])
     assert np.asarray(final["covariance_ee"]).shape == (6, 6)
+    ev = summary["evidence"]
+    assert [r[0] for r in ev["per_frame"]["rows"]] == [0, 1, 2]
+    assert ev["final"]["min_iou"] == pytest.approx(float(rows[-1][20]), abs=1e-4)
+    assert ev["final"]["min_iou"] == pytest.approx(min(ev["final"]["sensor_iou"].values()))
+    assert max(ev["final"]["likelihood_sigma_translation_m"]) == pytest.approx(float(rows[-1][21]), abs=1e-9)
     # the track's last row is the summary's final pose
     last = rows[-1]
     assert np.allclose([float(v) for v in last[2:5]], final["T_world_object"]["translation_m"], atol=1e-9)
