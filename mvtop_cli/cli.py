@@ -764,6 +764,31 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
                + ", ".join(f"{k[:-3].replace('_', ' ')} {v:.1f} ms" for k, v in masking.items()))
 
 
+def benchmark_scene_option():
+    """``--scene default|hard``: the simulated camera scene of a benchmark's runs."""
+    return click.option("--scene", type=click.Choice(["default", "hard"]), default="default", show_default=True,
+                        help="Simulated camera scene: hard adds shadows and dark faces, glossy plastic, a cluttered "
+                             "textured background and lighting that changes between frames (mvtop simulate --scene "
+                             "hard). One scene per --out folder.")
+
+
+def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> tuple[tuple[str, ...], tuple]:
+    """A benchmark's objects: those of ``--objects`` (default: every built-in object, none when
+    object files are given) and then those of the ``--object-file`` files; and (name, resolved
+    path) of each object file. An unknown object or a name used twice is an error."""
+    from .sim.object_file import load_object_file
+    from .sim.objects import get_object, list_objects
+
+    objs = tuple(o.strip() for o in objects.split(",")) if objects else () if object_files else tuple(list_objects())
+    for o in objs:
+        get_object(o)
+    files = tuple((load_object_file(f).name, str(f.resolve())) for f in object_files)
+    clash = sorted({n for n, _ in files if n in objs or [m for m, _ in files].count(n) > 1})
+    if clash:
+        raise MvtopError(f"--object-file: object name {clash[0]!r} is used twice (object names name the runs)")
+    return objs + tuple(n for n, _ in files), files
+
+
 @benchmark_group.command("accuracy")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Benchmark folder (runs are kept there; running again resumes).")
@@ -779,9 +804,7 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
-@click.option("--scene", type=click.Choice(["default", "hard"]), default="default", show_default=True,
-              help="Simulated camera scene: hard adds shadows and dark faces, glossy plastic, a cluttered textured "
-                   "background and lighting that changes between frames (mvtop simulate --scene hard).")
+@benchmark_scene_option()
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -801,18 +824,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     log-scale box plots of the errors per object and method in OUT/summary.html. OUT/results.jsonl.gz
     keeps every finished run in compact form, for --import-results elsewhere."""
     from .benchmarks.accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
-    from .sim.objects import get_object, list_objects
 
-    objs = tuple(o.strip() for o in objects.split(",")) if objects else () if object_files else tuple(list_objects())
-    for o in objs:
-        get_object(o)
-    from .sim.object_file import load_object_file
-
-    files = tuple((load_object_file(f).name, str(f.resolve())) for f in object_files)
-    clash = sorted({n for n, _ in files if n in objs or [m for m, _ in files].count(n) > 1})
-    if clash:
-        raise MvtopError(f"--object-file: object name {clash[0]!r} is used twice (object names name the runs)")
-    objs += tuple(n for n, _ in files)
+    objs, files = _benchmark_objects(objects, object_files)
     meths = tuple(m.strip() for m in methods.split(","))
     bad = [m for m in meths if m not in METHODS]
     if bad:
@@ -825,6 +838,58 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
     click.echo(f"wrote {out_dir}/summary.md and summary.html ({summary['seconds_this_run']:.0f} s in this run)")
+
+
+@benchmark_group.command("insertion")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Benchmark folder (runs are kept there; running again resumes).")
+@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
+              "with --object-file unless given).")
+@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Also benchmark your own part, described by this object file (repeat for several).")
+@click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
+@click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
+              help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i.")
+@click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
+              help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact).")
+@click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
+              help="Descents per grasp: after a stalled one the robot backs off, re-aligns and retries.")
+@benchmark_scene_option()
+@particles_option()
+@click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
+@click.option("--keep-logs", is_flag=True, help="Write every attempt as an MCAP log (OUT/runs/RUN/logs/).")
+@click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="results.jsonl.gz of another insertion benchmark folder: its runs count as done here.")
+@click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
+              "finished; make no new run.")
+@click.option("--ray", "ray_address", metavar="ADDRESS",
+              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
+                   "writes into --out, which must be on a file system they share.")
+def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
+                            first_seed: int, methods: str, attempts: int, scene: str, particles: int | None,
+                            workers: int, keep_logs: bool, import_results: Path | None, summary_only: bool,
+                            ray_address: str | None) -> None:
+    """The paper's Table I in closed loop: every object x grasp x method is inserted in the
+    simulator, the robot aligning the estimated object pose with the receptacle and retrying
+    after a stalled descent; prints the success rates (per object and method, and their
+    average), attempts and time to insert, and writes them to OUT/summary.md and summary.json;
+    OUT/results.jsonl.gz keeps every finished run."""
+    from .benchmarks.insertion import METHODS, InsertionBenchmarkOptions, format_table, run_insertion_benchmark
+
+    objs, files = _benchmark_objects(objects, object_files)
+    meths = tuple(m.strip() for m in methods.split(","))
+    bad = [m for m in meths if m not in METHODS]
+    if bad:
+        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
+    options = InsertionBenchmarkOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths,
+                                        attempts=attempts,
+                                        particles=particles, workers=workers, object_files=files,
+                                        keep_logs=keep_logs, import_results=import_results,
+                                        summary_only=summary_only, ray=ray_address, scene=scene)
+    with _progress("benchmark insertion") as update:
+        summary = run_insertion_benchmark(out_dir, options, progress=update)
+    click.echo(format_table(summary))
+    click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_run']:.0f} s in this run)")
 
 
 @benchmark_group.command("long-log")

@@ -19,14 +19,10 @@ benchmark across machines. ``OUT/invocations.jsonl`` records each invocation's w
 
 from __future__ import annotations
 
-import functools
-import gzip
-import hashlib
 import html
 import json
 import os
 import time
-from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -38,6 +34,19 @@ from ..durations import format_duration
 from ..errors import MvtopError
 from ..eval import report as R
 from ..io.atomic import atomic_output
+from .runs import (
+    append_invocation,
+    check_scene,
+    code_fingerprint,
+    finished_runs,
+    import_records,
+    read_jsonl,
+    run_jobs,
+    scene_record,
+    totals,
+    write_jsonl_gz,
+    write_result,
+)
 
 MODALITY_SETS = {
     "M-VTOP": ("vision", "tactile", "contact"),
@@ -73,20 +82,8 @@ class AccuracyOptions:
 
 
 RESULTS_FILE = "results.jsonl.gz"
-INVOCATIONS_FILE = "invocations.jsonl"
 # what a compact record keeps of a run's result.json: all the tables and plots use
 _RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "final", "benchmark")
-
-
-@functools.lru_cache(maxsize=4)
-def code_fingerprint(package: Path | None = None) -> str:
-    """SHA-256 (first 12 hex digits) over the package's Python sources, relative path and
-    bytes, in path order: runs made by the same code carry the same fingerprint."""
-    root = Path(package) if package is not None else Path(__file__).resolve().parents[1]
-    h = hashlib.sha256()
-    for f in sorted(root.rglob("*.py")):
-        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()[:12]
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
@@ -129,10 +126,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                            "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
-                           "code": code_fingerprint(), **({"scene": scene_name} if scene_name != "default" else {}),
-                           **extra}
-    with atomic_output(run / "result.json", "w") as fh:
-        json.dump(report, fh)
+                           "code": code_fingerprint(), **scene_record(scene_name), **extra}
+    write_result(run, report)
     return report
 
 
@@ -160,47 +155,32 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
             for method in options.methods:
                 run_dir = out_dir / "runs" / f"{obj}_{seed}_{method}"
                 jobs.append((obj, seed, method, run_dir))
-    reports: dict[tuple, dict] = {}
-    todo = []
     imported = 0
     if options.import_results is not None:
-        imported = _import_results(Path(options.import_results), jobs)
-    for job in jobs:
-        result = job[3] / "result.json"
-        if result.is_file():
-            reports[job[:3]] = json.loads(result.read_text())
-            made_in = reports[job[:3]].get("benchmark", {}).get("scene", "default")
-            if made_in != options.scene:
-                raise MvtopError(f"{out_dir}: holds runs of the {made_in!r} scene, not {options.scene!r} "
-                                 "(expected one scene per benchmark folder: give another --out)")
-        elif not options.summary_only:
-            todo.append(job)
-    done = len(reports)
-    if options.summary_only and not reports:
-        raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
-                         "(expected runs/*/result.json, or --import-results FILE)")
-    if progress is not None:
-        progress(done, len(jobs))
-    t0 = time.perf_counter()
+        imported = import_records(Path(options.import_results), read_results(Path(options.import_results)),
+                                  [(j[:3], j[3]) for j in jobs])
+    reports, todo = finished_runs([(job[:3], job[3]) for job in jobs])
+    check_scene(out_dir, reports, options.scene)
+    if options.summary_only:
+        todo = []
+        if not reports:
+            raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
+                             "(expected runs/*/result.json, or --import-results FILE)")
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
     files = dict(options.object_files)
-    args = [(o, s, m, str(d), options.frames, options.particles, engine.threads, files.get(o), options.scene)
-            for o, s, m, d in todo]
-    for outcome in engine.run(_run_one, args):
-        if outcome.error is not None:
-            raise outcome.error
-        reports[todo[outcome.index][:3]] = outcome.value
-        done += 1
-        if progress is not None:
-            progress(done, len(jobs))
-    seconds = time.perf_counter() - t0
+
+    def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
+        o, s, m = key
+        return (o, s, m, str(run_dir), options.frames, options.particles, threads, files.get(o), options.scene)
+
+    seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
-        _append_invocation(out_dir, options, len(todo), imported, seconds)
+        append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
                "scene": options.scene,
                "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
-               "imported_this_run": imported, "totals": _totals(out_dir, reports), "table": {}}
+               "imported_this_run": imported, "totals": totals(out_dir, reports), "table": {}}
     for method in options.methods:
         for obj in options.objects:
             rs = [r for (o, s, m), r in reports.items() if o == obj and m == method]
@@ -241,31 +221,14 @@ def compact_record(report: dict) -> dict:
 def write_results(path: Path, reports: dict[tuple, dict]) -> None:
     """``results.jsonl.gz``: one compact record per run, in (object, seed, method) order;
     byte-identical for the same runs (no time stamp in the gzip header)."""
-    lines = [json.dumps(compact_record(reports[key]), sort_keys=True) for key in sorted(reports)]
-    data = ("\n".join(lines) + "\n").encode() if lines else b""
-    with atomic_output(path, "wb") as fh:
-        with gzip.GzipFile(fileobj=fh, mode="wb", mtime=0, filename="") as gz:
-            gz.write(data)
+    write_jsonl_gz(path, [compact_record(reports[key]) for key in sorted(reports)])
 
 
 def read_results(path: Path) -> list[dict]:
     """The records of a ``results.jsonl.gz`` (or plain ``.jsonl``); a damaged file or record
     is an error naming the file and line."""
-    try:
-        raw = path.read_bytes()
-        text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("utf-8")
-    except FileNotFoundError:
-        raise MvtopError(f"{path}: results file not found (expected an {RESULTS_FILE} of a benchmark folder)") from None
-    except (OSError, EOFError, UnicodeDecodeError) as e:
-        raise MvtopError(f"{path}: not a readable results file ({e})") from None
     records = []
-    for n, line in enumerate(text.splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise MvtopError(f"{path} line {n}: not JSON ({e.msg})") from None
+    for n, rec in read_jsonl(path, RESULTS_FILE):
         b = rec.get("benchmark") if isinstance(rec, dict) else None
         f = rec.get("final") if isinstance(rec, dict) else None
         if (not isinstance(b, dict) or not isinstance(f, dict) or not all(k in b for k in ("object", "seed", "method"))
@@ -274,55 +237,6 @@ def read_results(path: Path) -> list[dict]:
                              "and final.insertable/translation_error_mm")
         records.append(rec)
     return records
-
-
-def _import_results(path: Path, jobs: list[tuple]) -> int:
-    """Write the records of ``path`` that match a job without a result yet as that job's
-    result.json; returns how many were imported."""
-    wanted = {(o, s, m): d for o, s, m, d in jobs}
-    count = 0
-    for rec in read_results(path):
-        b = rec["benchmark"]
-        run_dir = wanted.get((b["object"], b["seed"], b["method"]))
-        if run_dir is None or (run_dir / "result.json").is_file():
-            continue
-        run_dir.mkdir(parents=True, exist_ok=True)
-        with atomic_output(run_dir / "result.json", "w") as fh:
-            json.dump({**rec, "imported_from": str(path)}, fh)
-        count += 1
-    return count
-
-
-def _append_invocation(out_dir: Path, options: AccuracyOptions, ran: int, imported: int, seconds: float) -> None:
-    entry = {"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seconds": round(seconds, 1),
-             "runs_made": ran, "runs_imported": imported, "workers": options.workers,
-             "cpus": os.cpu_count(), "code": code_fingerprint()}
-    with (out_dir / INVOCATIONS_FILE).open("a") as fh:
-        fh.write(json.dumps(entry) + "\n")
-
-
-def _totals(out_dir: Path, reports: dict[tuple, dict]) -> dict:
-    """Time spent over the whole benchmark (all invocations of this folder) and which code
-    made its runs."""
-    invocations = []
-    path = out_dir / INVOCATIONS_FILE
-    if path.is_file():
-        for line in path.read_text().splitlines():
-            try:
-                invocations.append(json.loads(line))
-            except json.JSONDecodeError:
-                continue  # a line cut by a crash: its time is not counted
-    bench = [r.get("benchmark", {}) for r in reports.values()]
-    codes = Counter(b.get("code", "unrecorded") for b in bench)
-    return {
-        "invocations": len(invocations),
-        "wall_seconds_all_invocations": round(sum(float(i.get("seconds", 0.0)) for i in invocations), 1),
-        "run_seconds_sum": round(sum(float(b.get("seconds", 0.0)) for b in bench), 1),
-        "run_cpu_seconds_sum": round(sum(float(b.get("cpu_seconds", 0.0)) for b in bench), 1),
-        "simulate_seconds_sum": round(sum(float(b.get("simulate_seconds", 0.0)) for b in bench), 1),
-        "runs_without_simulate_time": sum("simulate_seconds" not in b for b in bench),
-        "code_versions": dict(sorted(codes.items())),
-    }
 
 
 def final_errors(reports: dict[tuple, dict], objects, methods) -> dict:

@@ -119,6 +119,91 @@ def _cable(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
     return cyl, offset @ tilt
 
 
+@dataclass
+class SensorRig:
+    """The simulated sensors of one scene: the two cameras and their renderer, the tactile
+    camera and its renderer, the gel backgrounds, the occluding cables and the lighting; what
+    ``write_images`` renders a frame with. ``close`` releases the renderers."""
+
+    cameras: list
+    cam_renderer: CameraSceneRenderer
+    tac_renderer: CameraSceneRenderer
+    tac_camera: object
+    T_finger_tac: np.ndarray
+    mm_per_px: float
+    backgrounds: dict
+    cables: list
+    key_dir: np.ndarray
+    lens: tuple | None
+
+    @classmethod
+    def build(cls, spec, T_world_rec: np.ndarray, options: SimulateOptions, scene_rng: np.random.Generator,
+              tac_rng: np.random.Generator, clutter_rng: np.random.Generator | None = None) -> SensorRig:
+        """The rig of ``spec``'s scene with its receptacle at ``T_world_rec``; draws the cables
+        from ``scene_rng``, the gel backgrounds from ``tac_rng`` and, with ``options.clutter``,
+        the clutter around the board from ``clutter_rng``."""
+        target = T_world_rec[:3, 3] + np.array([0.0, 0.0, 0.012])
+        cameras = camera_placements(target, options.width, options.height)
+        lens = None
+        if options.distortion is not None:
+            D = np.asarray(options.distortion, dtype=np.float64)
+            cameras = [replace(c, camera=replace(c.camera, distortion_model="plumb_bob", distortion=D))
+                       for c in cameras]
+            lens = distortion_maps(cameras[0].camera)
+        fingers = grip.gripper_meshes()
+        finger_mat = _material(grip.FINGER_COLOR_RGBA, metallic=0.6, roughness=0.45)
+        obj_mat = finger_mat if options.low_contrast else _material(spec.color_rgba, spec.metallic, spec.roughness)
+        if options.object_rgb is not None:
+            obj_mat = Material(tuple(float(c) for c in options.object_rgb), 0.0, 0.8)
+        if options.glossy:
+            obj_mat = hard.glossy(obj_mat)
+        parts: dict[str, tuple[trimesh.Trimesh, Material]] = {
+            "table": (table_mesh(), Material((0.36, 0.30, 0.24), 0.0, 0.9)),
+            "board": (board_mesh(), Material((0.12, 0.30, 0.16), 0.0, 0.6)),
+            "receptacle": (spec.receptacle_mesh, _material(spec.receptacle_color_rgba, 0.0, 0.5)),
+            "finger_left": (fingers["left"], finger_mat),
+            "finger_right": (fingers["right"], finger_mat),
+            "object": (spec.mesh, obj_mat),
+        }
+        cables = [_cable(scene_rng) for _ in range(options.occluders)]
+        for i, (mesh, _) in enumerate(cables):
+            parts[f"cable{i}"] = (mesh, Material((0.08, 0.08, 0.09), 0.0, 0.5))
+        if options.clutter:
+            if clutter_rng is None:
+                raise ValueError("a cluttered scene needs clutter_rng")
+            parts.update(hard.cluttered_parts(clutter_rng))
+        if options.shadows:
+            cam_renderer = CameraSceneRenderer(parts, options.width, options.height, shadows=True,
+                                               ambient=hard.HARD_AMBIENT)
+        else:
+            cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
+        cam_renderer.set_pose("receptacle", T_world_rec)
+        tac_camera = grip.tactile_camera(options.gel_distance_m)
+        tac_renderer = CameraSceneRenderer({"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height)
+        T_finger_tac = grip.T_finger_tactile_optical(options.gel_distance_m)
+        mm_per_px = 1000.0 * options.gel_distance_m / tac_camera.fx
+        backgrounds = {side: make_background(tac_camera.height, tac_camera.width, tac_rng) for side in TACTILE_SIDES}
+
+        key_dir = se3.make_pose(se3.rotvec_to_matrix(np.array([np.radians(-50.0), np.radians(25.0), 0.0])), np.zeros(3))
+        return cls(cameras, cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px, backgrounds, cables,
+                   key_dir, lens)
+
+    def static_transforms(self, kinematics: str) -> list[tuple[str, str, np.ndarray]]:
+        """The /tf_static transforms of a log written with ``kinematics`` (see KINEMATICS)."""
+        static = [(("world", f"{c.name}_optical", c.T_world_camera)) for c in self.cameras]
+        if kinematics == "tf-chain":
+            static += robot.static_transforms()
+        elif kinematics == "joint-states":  # the URDF carries everything past base_link
+            static += robot.static_transforms()[:1]
+        if kinematics != "joint-states":
+            static += [(f"finger_{s}", f"tactile_{s}_optical", self.T_finger_tac) for s in TACTILE_SIDES]
+        return static
+
+    def close(self) -> None:
+        self.cam_renderer.close()
+        self.tac_renderer.close()
+
+
 def simulate(
     object_name: str,
     seed: int,
@@ -153,71 +238,22 @@ def simulate(
         raise MvtopError(f"sensor timing: {err}") from None
     robot_states = _robot_samples(states, options.timing)
 
-    target = T_world_rec[:3, 3] + np.array([0.0, 0.0, 0.012])
-    cameras = camera_placements(target, options.width, options.height)
-    lens = None
-    if options.distortion is not None:
-        D = np.asarray(options.distortion, dtype=np.float64)
-        cameras = [replace(c, camera=replace(c.camera, distortion_model="plumb_bob", distortion=D)) for c in cameras]
-        lens = distortion_maps(cameras[0].camera)
-    fingers = grip.gripper_meshes()
-    finger_mat = _material(grip.FINGER_COLOR_RGBA, metallic=0.6, roughness=0.45)
-    obj_mat = finger_mat if options.low_contrast else _material(spec.color_rgba, spec.metallic, spec.roughness)
-    if options.object_rgb is not None:
-        obj_mat = Material(tuple(float(c) for c in options.object_rgb), 0.0, 0.8)
-    if options.glossy:
-        obj_mat = hard.glossy(obj_mat)
-    parts: dict[str, tuple[trimesh.Trimesh, Material]] = {
-        "table": (table_mesh(), Material((0.36, 0.30, 0.24), 0.0, 0.9)),
-        "board": (board_mesh(), Material((0.12, 0.30, 0.16), 0.0, 0.6)),
-        "receptacle": (spec.receptacle_mesh, _material(spec.receptacle_color_rgba, 0.0, 0.5)),
-        "finger_left": (fingers["left"], finger_mat),
-        "finger_right": (fingers["right"], finger_mat),
-        "object": (spec.mesh, obj_mat),
-    }
-    cables = [_cable(scene_rng) for _ in range(options.occluders)]
-    for i, (mesh, _) in enumerate(cables):
-        parts[f"cable{i}"] = (mesh, Material((0.08, 0.08, 0.09), 0.0, 0.5))
-    if options.clutter:
-        parts.update(hard.cluttered_parts(clutter_rng))
-    if options.shadows:
-        cam_renderer = CameraSceneRenderer(parts, options.width, options.height, shadows=True,
-                                           ambient=hard.HARD_AMBIENT)
-    else:
-        cam_renderer = CameraSceneRenderer(parts, options.width, options.height)
-    cam_renderer.set_pose("receptacle", T_world_rec)
-    tac_camera = grip.tactile_camera(options.gel_distance_m)
-    tac_renderer = CameraSceneRenderer({"object": (spec.mesh, obj_mat)}, tac_camera.width, tac_camera.height)
-    T_finger_tac = grip.T_finger_tactile_optical(options.gel_distance_m)
-    mm_per_px = 1000.0 * options.gel_distance_m / tac_camera.fx
-    backgrounds = {side: make_background(tac_camera.height, tac_camera.width, tac_rng) for side in TACTILE_SIDES}
-
-    key_dir = se3.make_pose(se3.rotvec_to_matrix(np.array([np.radians(-50.0), np.radians(25.0), 0.0])), np.zeros(3))
+    rig = SensorRig.build(spec, T_world_rec, options, scene_rng, tac_rng, clutter_rng)
     t0 = robot_states[0].stamp_ns
     try:
         with LogWriter(out, compression=options.compression) as log:
-            static = [(("world", f"{c.name}_optical", c.T_world_camera)) for c in cameras]
-            if options.kinematics == "tf-chain":
-                static += robot.static_transforms()
-            elif options.kinematics == "joint-states":  # the URDF carries everything past base_link
-                static += robot.static_transforms()[:1]
-            if options.kinematics != "joint-states":
-                static += [(f"finger_{s}", f"tactile_{s}_optical", T_finger_tac) for s in TACTILE_SIDES]
-            log.write_tf(static, t0, static=True)
+            log.write_tf(rig.static_transforms(options.kinematics), t0, static=True)
             for st in (s for s in robot_states if s.stamp_ns < states[0].stamp_ns):  # held before the frames
-                _write_robot(log, st, options.kinematics)
+                write_robot(log, st, options.kinematics)
             for k, st in enumerate(states):
-                _write_robot(log, st, options.kinematics)
-                _write_images(log, st, schedule[k], states, cameras, cam_renderer, tac_renderer, tac_camera,
-                              T_finger_tac, mm_per_px, backgrounds, cables, key_dir, options, cam_rng, tac_rng, lens,
-                              mask_rng, light_rng)
+                write_robot(log, st, options.kinematics)
+                write_images(log, st, schedule[k], states, rig, options, cam_rng, tac_rng, mask_rng, light_rng)
                 if progress is not None:
                     progress(k + 1, len(states))
             for st in (s for s in robot_states if s.stamp_ns > states[-1].stamp_ns):  # held after them
-                _write_robot(log, st, options.kinematics)
+                write_robot(log, st, options.kinematics)
     finally:
-        cam_renderer.close()
-        tac_renderer.close()
+        rig.close()
     return SimulationSummary(Path(out), len(states), sum(s.contact for s in states), os.path.getsize(out))
 
 
@@ -233,7 +269,7 @@ def _robot_samples(states: list[EpisodeState], timing: SensorTiming) -> list[Epi
             + [replace(states[-1], stamp_ns=states[-1].stamp_ns + dt)])
 
 
-def _write_robot(log, st: EpisodeState, kinematics: str) -> None:
+def write_robot(log, st: EpisodeState, kinematics: str) -> None:
     """The robot's streams at ``st``: the end effector as ``kinematics`` says (see
     KINEMATICS), joint states, contact, wrench and the ground-truth object pose."""
     t = st.stamp_ns
@@ -253,14 +289,17 @@ def _write_robot(log, st: EpisodeState, kinematics: str) -> None:
     log.write_pose("/ground_truth/object_pose", st.T_world_object, t, "world")
 
 
-def _write_images(log, st: EpisodeState, capture: dict[str, int | None], states: list[EpisodeState], cameras,
-                  cam_renderer, tac_renderer, tac_camera, T_finger_tac, mm_per_px, backgrounds, cables, key_dir,
-                  options: SimulateOptions, cam_rng, tac_rng, lens=None, mask_rng=None, light_rng=None) -> None:
-    """The images of frame ``st``: each sensor in ``capture`` renders the scene at its capture
-    time (the frame's own state when that is the frame's time) and stamps it with that time;
-    sensors whose capture is None publish nothing. With ``options.mask_topics`` each camera
-    image also gets its object mask (``mask_rng`` degrades it); ``light_rng`` changes the
-    lights per frame (``options.light_change``)."""
+def write_images(log, st: EpisodeState, capture: dict[str, int | None], states: list[EpisodeState], rig: SensorRig,
+                 options: SimulateOptions, cam_rng, tac_rng, mask_rng=None, light_rng=None) -> None:
+    """The images of frame ``st`` rendered with ``rig``: each sensor in ``capture`` renders the
+    scene at its capture time (the frame's own state when that is the frame's time, else
+    interpolated in ``states``) and stamps it with that time; sensors whose capture is None
+    publish nothing. With ``options.mask_topics`` each camera image also gets its object mask
+    (``mask_rng`` degrades it); ``light_rng`` changes the lights per frame
+    (``options.light_change``)."""
+    cameras, cam_renderer, tac_renderer, tac_camera = rig.cameras, rig.cam_renderer, rig.tac_renderer, rig.tac_camera
+    T_finger_tac, mm_per_px, backgrounds, cables, key_dir, lens = (
+        rig.T_finger_tac, rig.mm_per_px, rig.backgrounds, rig.cables, rig.key_dir, rig.lens)
 
     def at(t: int) -> EpisodeState:
         return st if t == st.stamp_ns else state_at(states, t)

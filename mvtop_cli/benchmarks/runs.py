@@ -1,0 +1,177 @@
+"""What the simulated benchmarks (``accuracy``, ``insertion``) share: a folder of runs, one
+``runs/<name>/result.json`` per finished run, so that an interrupted benchmark resumes where it
+stopped; the runs made on the batch engine (``batch/engine.py``: local processes or Ray tasks)
+with progress; each invocation's wall time in ``invocations.jsonl``; the fingerprint of the
+code that made a run; one simulated camera scene per folder (``check_scene``); and the compact,
+byte-reproducible ``results.jsonl.gz``.
+"""
+
+from __future__ import annotations
+
+import functools
+import gzip
+import hashlib
+import json
+import os
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Callable, Hashable
+
+from ..errors import MvtopError
+from ..io.atomic import atomic_output
+
+INVOCATIONS_FILE = "invocations.jsonl"
+RESULT_FILE = "result.json"
+
+
+@functools.lru_cache(maxsize=4)
+def code_fingerprint(package: Path | None = None) -> str:
+    """SHA-256 (first 12 hex digits) over the package's Python sources, relative path and
+    bytes, in path order: runs made by the same code carry the same fingerprint."""
+    root = Path(package) if package is not None else Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
+def finished_runs(jobs: list[tuple[Hashable, Path]]) -> tuple[dict, list[tuple[Hashable, Path]]]:
+    """The reports of the jobs (key, run folder) whose ``result.json`` exists, and the jobs
+    still to run."""
+    reports, todo = {}, []
+    for key, run_dir in jobs:
+        result = Path(run_dir) / RESULT_FILE
+        if result.is_file():
+            reports[key] = json.loads(result.read_text())
+        else:
+            todo.append((key, run_dir))
+    return reports, todo
+
+
+def scene_record(scene: str) -> dict:
+    """What a run's ``benchmark`` record notes of its simulated camera scene
+    (``pipelines.simulate.SCENES``): nothing for the default scene, so records made before
+    scenes existed read as default-scene runs."""
+    return {"scene": scene} if scene != "default" else {}
+
+
+def check_scene(out_dir: Path, reports: dict, scene: str) -> None:
+    """A benchmark folder holds the runs of one camera scene: a finished (or imported) run of
+    another scene than ``scene`` is an error naming the folder."""
+    for report in reports.values():
+        made_in = report.get("benchmark", {}).get("scene", "default")
+        if made_in != scene:
+            raise MvtopError(f"{out_dir}: holds runs of the {made_in!r} scene, not {scene!r} "
+                             "(expected one scene per benchmark folder: give another --out)")
+
+
+def run_jobs(fn: Callable, todo: list[tuple[Hashable, Path]], args_of: Callable[[Hashable, Path, int], tuple],
+             reports: dict, total: int, engine, progress: Callable[[int, int], None] | None = None) -> float:
+    """Run ``fn(*args_of(key, run_dir, threads))`` for every job in ``todo`` on ``engine``
+    (``batch.engine.make_engine``: local processes or Ray tasks; the caller makes it before
+    any output, so that an unreachable cluster stops the benchmark before its folder exists)
+    and put each returned report into ``reports`` under its key; ``fn`` writes the run's
+    ``result.json`` itself. A run's error stops the benchmark (the finished runs stay).
+    ``progress(done, total)`` after each run and once at the start. Returns the wall time [s]."""
+    done = len(reports)
+    if progress is not None:
+        progress(done, total)
+    t0 = time.perf_counter()
+    args = [args_of(key, run_dir, engine.threads) for key, run_dir in todo]
+    for outcome in engine.run(fn, args):
+        if outcome.error is not None:
+            raise outcome.error
+        reports[todo[outcome.index][0]] = outcome.value
+        done += 1
+        if progress is not None:
+            progress(done, total)
+    return time.perf_counter() - t0
+
+
+def write_result(run_dir: Path, report: dict) -> None:
+    """A run's ``result.json`` (atomically: a run counts as finished only once it is whole)."""
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    with atomic_output(Path(run_dir) / RESULT_FILE, "w") as fh:
+        json.dump(report, fh)
+
+
+def append_invocation(out_dir: Path, workers: int, ran: int, imported: int, seconds: float) -> None:
+    """One line in ``invocations.jsonl``: when this invocation finished, its wall time and runs."""
+    entry = {"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seconds": round(seconds, 1),
+             "runs_made": ran, "runs_imported": imported, "workers": workers,
+             "cpus": os.cpu_count(), "code": code_fingerprint()}
+    with (Path(out_dir) / INVOCATIONS_FILE).open("a") as fh:
+        fh.write(json.dumps(entry) + "\n")
+
+
+def totals(out_dir: Path, reports: dict) -> dict:
+    """Time spent over the whole benchmark (all invocations of this folder) and which code
+    made its runs (from each report's ``benchmark`` record)."""
+    invocations = []
+    path = Path(out_dir) / INVOCATIONS_FILE
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            try:
+                invocations.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue  # a line cut by a crash: its time is not counted
+    bench = [r.get("benchmark", {}) for r in reports.values()]
+    codes = Counter(b.get("code", "unrecorded") for b in bench)
+    return {
+        "invocations": len(invocations),
+        "wall_seconds_all_invocations": round(sum(float(i.get("seconds", 0.0)) for i in invocations), 1),
+        "run_seconds_sum": round(sum(float(b.get("seconds", 0.0)) for b in bench), 1),
+        "run_cpu_seconds_sum": round(sum(float(b.get("cpu_seconds", 0.0)) for b in bench), 1),
+        "simulate_seconds_sum": round(sum(float(b.get("simulate_seconds", 0.0)) for b in bench), 1),
+        "runs_without_simulate_time": sum("simulate_seconds" not in b for b in bench),
+        "code_versions": dict(sorted(codes.items())),
+    }
+
+
+def write_jsonl_gz(path: Path, records: list[dict]) -> None:
+    """One JSON line per record (sorted keys), gzip'ed without a time stamp in the header:
+    byte-identical for the same records."""
+    lines = [json.dumps(r, sort_keys=True) for r in records]
+    data = ("\n".join(lines) + "\n").encode() if lines else b""
+    with atomic_output(path, "wb") as fh:
+        with gzip.GzipFile(fileobj=fh, mode="wb", mtime=0, filename="") as gz:
+            gz.write(data)
+
+
+def read_jsonl(path: Path, expected: str) -> list[tuple[int, object]]:
+    """(line number, JSON value) of every non-empty line of a gzip'ed or plain JSON-lines file;
+    a missing or damaged file, or a line that is not JSON, is an error naming the file (and
+    line). ``expected``: the file name to suggest when it is missing."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+        text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("utf-8")
+    except FileNotFoundError:
+        raise MvtopError(f"{path}: results file not found (expected an {expected} of a benchmark folder)") from None
+    except (OSError, EOFError, UnicodeDecodeError) as e:
+        raise MvtopError(f"{path}: not a readable results file ({e})") from None
+    out = []
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            out.append((n, json.loads(line)))
+        except json.JSONDecodeError as e:
+            raise MvtopError(f"{path} line {n}: not JSON ({e.msg})") from None
+    return out
+
+
+def import_records(path: Path, records: list[dict], jobs: list[tuple[Hashable, Path]]) -> int:
+    """Write each record (with ``benchmark.object/seed/method``) that matches a job without a
+    result yet as that job's result.json, noting ``imported_from``; returns how many."""
+    wanted = dict(jobs)
+    count = 0
+    for rec in records:
+        b = rec["benchmark"]
+        run_dir = wanted.get((b["object"], b["seed"], b["method"]))
+        if run_dir is None or (Path(run_dir) / RESULT_FILE).is_file():
+            continue
+        write_result(run_dir, {**rec, "imported_from": str(path)})
+        count += 1
+    return count

@@ -1,0 +1,49 @@
+"""``mvtop benchmark insertion --scene``: one simulated camera scene per benchmark folder, as
+for ``benchmark accuracy`` (the check is ``benchmarks.runs.check_scene``, shared by both)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mvtop_cli.benchmarks.insertion import InsertionBenchmarkOptions, format_table, run_insertion_benchmark
+from mvtop_cli.errors import MvtopError
+
+
+@pytest.mark.parametrize("made_in, asked", [(None, "hard"), ("hard", "default")])
+def test_a_folder_of_another_scene_is_refused_before_any_run(tmp_path, made_in, asked):
+    run = tmp_path / "runs" / "cube_1000_M-TOP"
+    run.mkdir(parents=True)
+    bench = {"object": "cube", "seed": 1000, "method": "M-TOP", "attempts_allowed": 3,
+             **({"scene": made_in} if made_in else {})}
+    (run / "result.json").write_text(json.dumps({"benchmark": bench}))
+    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",), scene=asked)
+    with pytest.raises(MvtopError) as info:
+        run_insertion_benchmark(tmp_path, options)
+    assert str(info.value) == (f"{tmp_path}: holds runs of the {made_in or 'default'!r} scene, not {asked!r} "
+                               "(expected one scene per benchmark folder: give another --out)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # nothing written
+
+
+def test_the_summary_names_a_hard_scene(tmp_path):
+    run = tmp_path / "runs" / "cube_1000_M-TOP"
+    run.mkdir(parents=True)
+    per_attempt = [{"index": 1, "first_frame": 0, "last_frame": 14, "outcome": "inserted", "depth_mm": 20.3,
+                    "align_error_mm": 0.05, "align_error_deg": 0.4}]
+    report = {"schema": "mvtop-insertion/1",
+              "benchmark": {"object": "cube", "seed": 1000, "method": "M-TOP", "attempts_allowed": 3, "scene": "hard",
+                            "seconds": 60.0, "cpu_seconds": 100.0, "particles": 500, "code": "abc"},
+              "insertion": {"success": True, "attempts": 1, "frames": 15, "rate_hz": 10.0, "time_to_insert_s": 1.5,
+                            "compliance_mm": 0.2, "per_attempt": per_attempt}}
+    (run / "result.json").write_text(json.dumps(report))
+    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",), scene="hard",
+                                        summary_only=True)
+    summary = run_insertion_benchmark(tmp_path, options)
+    assert summary["scene"] == "hard" and summary["table"]["M-TOP"]["cube"]["success_rate"] == 1.0
+    first = format_table(summary).splitlines()[0]
+    assert first == ("1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts, hard scene); "
+                     "code abc (1 runs).")
+    assert (tmp_path / "summary.md").read_text() == format_table(summary)
+    default = format_table({**summary, "scene": "default"}).splitlines()[0]
+    assert default == "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts); code abc (1 runs)."
