@@ -1,0 +1,75 @@
+"""NEES of each run's final covariance in a `mvtop benchmark accuracy` folder, as the particles'
+spread alone and with the evidence's widths added (`output.covariance: particles_and_evidence`,
+estimator/evidence.py), recomputed from each run's summary.json by `mvtop eval`'s own NEES.
+Prints one line per run and, per method, the fraction within the chi-square 95 % bound.
+Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--json OUT.json]"""
+import argparse
+import collections
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from mvtop_cli.config import load_config
+from mvtop_cli.estimator.evidence import evidence_covariance
+from mvtop_cli.estimator.prior import GraspPriorModel
+from mvtop_cli.pipelines.evaluate import evaluate
+
+
+def nees_with(run: Path, log: Path, covariance: np.ndarray) -> float:
+    summary = json.loads((run / "summary.json").read_text())
+    summary["final"] = dict(summary["final"], covariance_ee=covariance.tolist())
+    with tempfile.TemporaryDirectory() as tmp:
+        track = Path(tmp) / "track"
+        shutil.copytree(run, track, ignore=shutil.ignore_patterns("eval", "track.mcap"))
+        (track / "summary.json").write_text(json.dumps(summary))
+        return float(evaluate(track, log, None, Path(tmp) / "eval")["final"]["nees"])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("bench", type=Path)
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    rows = []
+    for run in sorted((args.bench / "runs").iterdir()):
+        if not (run / "result.json").is_file():
+            continue
+        result = json.loads((run / "result.json").read_text())
+        summary = json.loads((run / "summary.json").read_text())
+        ev = summary.get("evidence", {}).get("final")
+        if ev is None:
+            continue
+        obj, seed, method = run.name.rsplit("_", 2)
+        log = args.bench / "scenes" / f"{obj}_{seed}" / "log.mcap"
+        cfg = load_config(run / "config.resolved.yaml")
+        prior = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma
+        widths = np.array([np.inf if v is None else v for v in ev["likelihood_sigma_translation_m"]]
+                          + [np.inf if v is None else np.radians(v) for v in ev["likelihood_sigma_rotation_deg"]])
+        reported = np.array(summary["final"]["covariance_ee"])
+        # runs made before output.covariance existed reported the particles' spread alone
+        mode = (yaml.safe_load((run / "config.resolved.yaml").read_text()).get("output") or {}).get("covariance",
+                                                                                                   "particles")
+        particles = reported if mode == "particles" else reported - evidence_covariance(widths, prior)
+        row = {"run": run.name, "object": obj, "method": method, "bound": result["final"]["nees_bound"],
+               "insertable": result["final"]["insertable"], "error_mm": result["final"]["pose_error_mm"],
+               "nees_particles": nees_with(run, log, particles),
+               "nees_particles_and_evidence": nees_with(run, log, particles + evidence_covariance(widths, prior))}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    by_method = collections.defaultdict(list)
+    for r in rows:
+        by_method[r["method"]].append(r)
+    for method, rs in sorted(by_method.items()):
+        frac = {k: np.mean([r[k] <= r["bound"] for r in rs]) for k in ("nees_particles", "nees_particles_and_evidence")}
+        print(f"{method}: {len(rs)} runs, NEES within the 95 % bound: particles {frac['nees_particles']:.0%}, "
+              f"particles and evidence {frac['nees_particles_and_evidence']:.0%}")
+
+
+if __name__ == "__main__":
+    main()
