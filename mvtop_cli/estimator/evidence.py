@@ -78,8 +78,8 @@ def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_o
     probes = perturb_about_origin(np.broadcast_to(T_ee_object, (12, 4, 4)), delta[:, :3], delta[:, 3:])
     ll = log_likelihood(np.concatenate([np.asarray(T_ee_object, dtype=np.float64)[None], probes]))
     centre, side = ll[0], ll[1:].reshape(6, 2)
-    drop = centre - side.mean(axis=1)  # nats lost half a step's square away: d^2 / (2 sigma^2)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # -inf scores: nan drops, inf widths
+        drop = centre - side.mean(axis=1)  # nats lost half a step's square away: d^2 / (2 sigma^2)
         sigma = np.where(drop > 0, steps / np.sqrt(2.0 * drop), np.inf)
     if not np.isfinite(centre):
         sigma = np.full(6, np.inf)
