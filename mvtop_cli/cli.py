@@ -772,6 +772,43 @@ def benchmark_scene_option():
                              "hard). One scene per --out folder.")
 
 
+def benchmark_grasp_options(command):
+    """The options every simulated benchmark shares: ``--out``, which objects (``--objects``,
+    ``--object-file``) and which grasps (``--poses`` from ``--first-seed``)."""
+    options = [
+        click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+                     help="Benchmark folder (runs are kept there; running again resumes)."),
+        click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; "
+                     "none with --object-file unless given)."),
+        click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
+                     help="Also benchmark your own part, described by this object file (repeat for several)."),
+        click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True,
+                     help="Grasps per object."),
+        click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
+                     help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i (another range: grasps the "
+                          "default tables never used)."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def benchmark_ray_option():
+    """``--ray ADDRESS``: a benchmark's runs as Ray tasks (``batch/engine.py``)."""
+    return click.option("--ray", "ray_address", metavar="ADDRESS",
+                        help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every "
+                             "worker writes into --out, which must be on a file system they share.")
+
+
+def _benchmark_methods(methods: str, known: tuple[str, ...]) -> tuple[str, ...]:
+    """The comma-separated ``--methods``; an unknown one is an error naming those ``known``."""
+    meths = tuple(m.strip() for m in methods.split(","))
+    bad = [m for m in meths if m not in known]
+    if bad:
+        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(known)})")
+    return meths
+
+
 def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> tuple[tuple[str, ...], tuple]:
     """A benchmark's objects: those of ``--objects`` (default: every built-in object, none when
     object files are given) and then those of the ``--object-file`` files; and (name, resolved
@@ -790,16 +827,7 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
 
 
 @benchmark_group.command("accuracy")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Benchmark folder (runs are kept there; running again resumes).")
-@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
-              "with --object-file unless given).")
-@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Also benchmark your own part, described by this object file (repeat for several).")
-@click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
-@click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
-              help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i (another range: grasps the "
-                   "default tables never used).")
+@benchmark_grasp_options
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact), CHSEL (baseline: "
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
@@ -812,9 +840,7 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
                    "benchmark on another machine).")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished (or imported); make no new run.")
-@click.option("--ray", "ray_address", metavar="ADDRESS",
-              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
-                   "writes into --out, which must be on a file system they share.")
+@benchmark_ray_option()
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
                            first_seed: int, methods: str, frames: int, scene: str, particles: int | None, workers: int,
                            import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
@@ -826,10 +852,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     from .benchmarks.accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
 
     objs, files = _benchmark_objects(objects, object_files)
-    meths = tuple(m.strip() for m in methods.split(","))
-    bad = [m for m in meths if m not in METHODS]
-    if bad:
-        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
+    meths = _benchmark_methods(methods, METHODS)
     options = AccuracyOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths, frames=frames,
                               particles=particles, workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
@@ -841,15 +864,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 
 
 @benchmark_group.command("insertion")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Benchmark folder (runs are kept there; running again resumes).")
-@click.option("--objects", default=None, metavar="LIST", help="Comma-separated objects (default: all five; none "
-              "with --object-file unless given).")
-@click.option("--object-file", "object_files", multiple=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Also benchmark your own part, described by this object file (repeat for several).")
-@click.option("--poses", type=click.IntRange(1, 10000), default=100, show_default=True, help="Grasps per object.")
-@click.option("--first-seed", type=click.IntRange(0, 2**31 - 1), default=1000, show_default=True,
-              help="Seed of the first grasp; grasp i uses seed FIRST_SEED + i.")
+@benchmark_grasp_options
 @click.option("--methods", default="M-VTOP,M-VOP,M-TOP", show_default=True, metavar="LIST",
               help="M-VTOP (vision+touch+contact), M-VOP (vision), M-TOP (touch+contact).")
 @click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
@@ -862,9 +877,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
               help="results.jsonl.gz of another insertion benchmark folder: its runs count as done here.")
 @click.option("--summary-only", is_flag=True, help="Only write and print the tables over the runs already "
               "finished; make no new run.")
-@click.option("--ray", "ray_address", metavar="ADDRESS",
-              help="Run the runs as Ray tasks: local, auto or a cluster address (as for estimate); every worker "
-                   "writes into --out, which must be on a file system they share.")
+@benchmark_ray_option()
 def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
                             first_seed: int, methods: str, attempts: int, scene: str, particles: int | None,
                             workers: int, keep_logs: bool, import_results: Path | None, summary_only: bool,
@@ -877,10 +890,7 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
     from .benchmarks.insertion import METHODS, InsertionBenchmarkOptions, format_table, run_insertion_benchmark
 
     objs, files = _benchmark_objects(objects, object_files)
-    meths = tuple(m.strip() for m in methods.split(","))
-    bad = [m for m in meths if m not in METHODS]
-    if bad:
-        raise MvtopError(f"--methods: unknown {', '.join(bad)} (expected {', '.join(METHODS)})")
+    meths = _benchmark_methods(methods, METHODS)
     options = InsertionBenchmarkOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths,
                                         attempts=attempts,
                                         particles=particles, workers=workers, object_files=files,

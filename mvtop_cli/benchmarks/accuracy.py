@@ -36,10 +36,8 @@ from ..eval import report as R
 from ..io.atomic import atomic_output
 from .runs import (
     append_invocation,
-    check_scene,
     code_fingerprint,
-    finished_runs,
-    import_records,
+    plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
@@ -145,27 +143,9 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
 
         require()  # a missing extra stops here, before any run, with the pip command
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
-    (out_dir / "runs").mkdir(parents=True, exist_ok=True)
-    jobs = []
-    # grasp-major order, so a partial (interrupted) benchmark holds the same grasps of every
-    # object and method, and its tables compare like with like
-    for i in range(options.poses):
-        seed = options.first_seed + i
-        for obj in options.objects:
-            for method in options.methods:
-                run_dir = out_dir / "runs" / f"{obj}_{seed}_{method}"
-                jobs.append((obj, seed, method, run_dir))
-    imported = 0
-    if options.import_results is not None:
-        imported = import_records(Path(options.import_results), read_results(Path(options.import_results)),
-                                  [(j[:3], j[3]) for j in jobs])
-    reports, todo = finished_runs([(job[:3], job[3]) for job in jobs])
-    check_scene(out_dir, reports, options.scene)
-    if options.summary_only:
-        todo = []
-        if not reports:
-            raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
-                             "(expected runs/*/result.json, or --import-results FILE)")
+    jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
+                                              options.first_seed, options.scene, options.import_results, read_results,
+                                              options.summary_only)
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
     files = dict(options.object_files)

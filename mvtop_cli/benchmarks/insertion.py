@@ -37,10 +37,8 @@ from ..io.atomic import atomic_output
 from .accuracy import MODALITY_SETS
 from .runs import (
     append_invocation,
-    check_scene,
     code_fingerprint,
-    finished_runs,
-    import_records,
+    plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
@@ -125,21 +123,9 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     if options.attempts < 1:
         raise MvtopError(f"attempts: expected at least 1, got {options.attempts}")
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
-    (out_dir / "runs").mkdir(parents=True, exist_ok=True)
-    # grasp-major order, so a partial benchmark holds the same grasps of every object and method
-    jobs = [((obj, options.first_seed + i, method), out_dir / "runs" / f"{obj}_{options.first_seed + i}_{method}")
-            for i in range(options.poses) for obj in options.objects for method in options.methods]
-    imported = 0
-    if options.import_results is not None:
-        path = Path(options.import_results)
-        imported = import_records(path, read_results(path), jobs)
-    reports, todo = finished_runs(jobs)
-    check_scene(out_dir, reports, options.scene)
-    if options.summary_only:
-        todo = []
-        if not reports:
-            raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
-                             "(expected runs/*/result.json, or --import-results FILE)")
+    jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
+                                              options.first_seed, options.scene, options.import_results, read_results,
+                                              options.summary_only)
     stale = sorted({r["benchmark"]["attempts_allowed"] for r in reports.values()} - {options.attempts})
     if stale:
         raise MvtopError(f"{out_dir}: its runs were made with --attempts {stale[0]}, not {options.attempts} "

@@ -49,6 +49,31 @@ def finished_runs(jobs: list[tuple[Hashable, Path]]) -> tuple[dict, list[tuple[H
     return reports, todo
 
 
+def plan_runs(out_dir: Path, objects, methods, poses: int, first_seed: int, scene: str,
+              import_results: Path | None, read_results: Callable[[Path], list[dict]], summary_only: bool
+              ) -> tuple[list[tuple[Hashable, Path]], dict, list[tuple[Hashable, Path]], int]:
+    """A benchmark's runs in ``out_dir/runs``: every (object, seed, method) job in grasp-major
+    order (a partial benchmark holds the same grasps of every object and method, so its tables
+    compare like with like), the records of ``import_results`` (read by ``read_results``)
+    written as their results, the finished reports checked for one camera ``scene``, and the
+    jobs still to run (none with ``summary_only``, which needs a finished run). Returns
+    ``(jobs, reports, todo, imported)``."""
+    (out_dir / "runs").mkdir(parents=True, exist_ok=True)
+    jobs = [((obj, first_seed + i, method), out_dir / "runs" / f"{obj}_{first_seed + i}_{method}")
+            for i in range(poses) for obj in objects for method in methods]
+    imported = 0
+    if import_results is not None:
+        imported = import_records(Path(import_results), read_results(Path(import_results)), jobs)
+    reports, todo = finished_runs(jobs)
+    check_scene(out_dir, reports, scene)
+    if summary_only:
+        todo = []
+        if not reports:
+            raise MvtopError(f"{out_dir}: no finished run of the requested objects, grasps and methods to summarise "
+                             "(expected runs/*/result.json, or --import-results FILE)")
+    return jobs, reports, todo, imported
+
+
 def scene_record(scene: str) -> dict:
     """What a run's ``benchmark`` record notes of its simulated camera scene
     (``pipelines.simulate.SCENES``): nothing for the default scene, so records made before

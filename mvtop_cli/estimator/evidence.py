@@ -9,7 +9,8 @@ Two numbers a user can read next to the estimate (track.csv, summary.json):
   and 8-9, as the filter uses it). A log-likelihood that falls by ``drop`` nats over a step
   ``h`` behaves like a Gaussian of standard deviation ``h / sqrt(2 drop)`` on that axis (the
   Laplace approximation); a flat or rising log-likelihood gives ``inf`` there: the evidence
-  does not pin that axis at the step's scale (or the estimate is off the likelihood's peak).
+  does not pin that axis at the step's scale (a central difference reads a quadratic's curvature
+  wherever the estimate sits on it, so being beside the peak does not make an axis flat).
 
 This is a reading of the evidence, not of the particles: a belief that has collapsed further
 than its evidence supports shows as a particle spread far below these widths.
@@ -57,14 +58,17 @@ class EvidenceReport:
 
     def as_dict(self) -> dict:
         """JSON-ready form (``inf`` as null)."""
-        def num(v: float) -> float | None:
-            return float(v) if np.isfinite(v) else None
-
+        num = finite_or_none
         return {"sensor_iou": {k: round(float(v), 6) for k, v in self.sensor_iou.items()},
                 "min_iou": None if self.min_iou is None else round(self.min_iou, 6),
                 "log_likelihood": num(self.log_likelihood),
                 "likelihood_sigma_translation_m": [num(v) for v in self.likelihood_sigma[:3]],
                 "likelihood_sigma_rotation_deg": [num(np.degrees(v)) for v in self.likelihood_sigma[3:]]}
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """``value`` as a JSON number, None when missing or not finite (a width the evidence leaves open)."""
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray,

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..config import Config, dump_config
 from ..estimator import FrameEstimate
+from ..estimator.evidence import finite_or_none
 from ..filter.health import count_warnings, sensor_report, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
@@ -74,9 +75,7 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
     estimate, the likelihood's width per axis, ``estimator/evidence.py``) and, per frame, the
     worst sensor IoU and the widest translation [m] / rotation [deg] width (null: no evidence,
     or a flat likelihood)."""
-    def num(v: float | None) -> float | None:
-        return None if v is None or not np.isfinite(v) else float(v)
-
+    num = finite_or_none
     frames = [[r.index, num(r.evidence.min_iou), num(r.evidence.sigma_translation_m),
                num(r.evidence.sigma_rotation_deg)] for r in results if r.evidence is not None]
     final = next((r.evidence.as_dict() for r in reversed(results) if r.evidence is not None), None)
