@@ -343,11 +343,18 @@ class OutputConfig:
 
 @dataclass(frozen=True)
 class ContactConfig:
-    """Contact likelihood (eq. 8-9): margin tau_c and softness sigma_d."""
+    """Contact likelihood (eq. 8-9): margin tau_c and softness sigma_d; the non-penetration
+    factor under contact (tau_p, sigma_p; beyond the paper)."""
 
     margin_m: float = field(default=0.0, metadata=_rng(-0.01, 0.01))
     softness_m: float = field(default=0.0002, metadata=_rng(0.0, 0.01, lo_open=True))
     sdf_resolution_m: float = field(default=0.00025, metadata=_rng(0.0, 0.01, lo_open=True))
+    penetration_tolerance_m: float = field(default=0.0001, metadata=_rng(
+        0.0, 0.01, doc="under contact, a pose sunk this deep into the environment loses half its weight "
+                       "(contact/likelihood.py: log_penetration_likelihood, beyond the paper)"))
+    penetration_softness_m: float | None = field(default=0.00005, metadata=_rng(
+        0.0, 0.01, lo_open=True, doc="how fast the weight falls with deeper penetration; null: no "
+                                     "non-penetration factor (eq. 8-9 alone)"))
     force_on_n: float = field(default=2.0, metadata=_rng(0.0, 10000.0, doc="with topics.wrench: contact starts here"))
     force_off_n: float = field(default=1.0, metadata=_rng(0.0, 10000.0, doc="with topics.wrench: contact ends here"))
 

@@ -70,6 +70,7 @@ def test_valid_config_resolves_paths_and_defaults(cfg_dir):
         ({"filter.temperature": 0}, "filter.temperature: expected a value > 0.0, got 0.0"),
         ({"filter.resampling": "sytematic"}, "did you mean 'systematic'?"),
         ({"contact.softness_m": "small"}, "contact.softness_m: expected a number, got 'small'"),
+        ({"contact.penetration_softness_m": 0}, "contact.penetration_softness_m: expected a value > 0.0, got 0"),
         ({"object.units": "cm"}, "object.units: expected one of 'm', 'mm', got 'cm'"),
         ({"object.mesh": "missing.obj"}, "object.mesh: mesh file not found"),
         ({"modalities": ["vision", "tactle"]},
@@ -179,3 +180,9 @@ def test_topic_backend_options_are_checked_at_load(cfg_dir, options, key):
     with pytest.raises(ConfigError, match=rf"c\.yaml: masking\.camera\.options\.{key}: ") as info:
         load_config(_with_mask_topic(cfg_dir, {**TOPIC_MASKS, "masking.camera.options": options}))
     assert "\n" not in str(info.value)
+
+
+def test_the_non_penetration_factor_is_on_by_default_and_null_turns_it_off(cfg_dir):
+    assert load_config(write(cfg_dir, BASE)).contact.penetration_softness_m == 5e-5
+    off = load_config(write(cfg_dir, BASE, {"contact.penetration_softness_m": None}))
+    assert off.contact.penetration_softness_m is None and off.contact.penetration_tolerance_m == 1e-4

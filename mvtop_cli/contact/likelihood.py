@@ -1,4 +1,5 @@
-"""Contact likelihood of a pose particle from its signed distance (M-VTOP eq. 8-9)."""
+"""Contact likelihood of a pose particle from its signed distance (M-VTOP eq. 8-9), and the
+non-penetration factor mvtop adds to it under contact (a part cannot be inside the receptacle)."""
 
 from __future__ import annotations
 
@@ -45,3 +46,20 @@ def log_contact_likelihood(phi, contact: bool, margin_m: float, softness_m: floa
     if not contact:
         return np.zeros_like(z)
     return log_expit(z)
+
+
+def log_penetration_likelihood(phi, tolerance_m: float, softness_m: float) -> np.ndarray:
+    """log p(no penetration | x) per particle: log σ((φ + τ_p) / σ_p), beyond the paper.
+
+    Eq. 8-9 only reward a pose for touching the environment (φ <= τ_c); a pose sunk into the
+    receptacle scores as well as one resting on it, so under contact the belief can tilt or
+    sink the part through the surface it is pressed against. This factor is 1/2 at a
+    penetration of ``tolerance_m`` (τ_p [m], what the signed-distance grid's interpolation
+    and a real contact's compliance leave open) and falls off over ``softness_m`` (σ_p [m]):
+    about -(-φ - τ_p) / σ_p nats for deeper penetration, about 0 for φ > τ_p.
+
+    phi : (N,) float, signed distance [m] between object and environment, < 0 penetrating.
+    """
+    if not softness_m > 0:
+        raise ValueError(f"softness_m (sigma_p) must be positive, got {softness_m}")
+    return log_expit((np.asarray(phi, dtype=np.float64) + float(tolerance_m)) / float(softness_m))

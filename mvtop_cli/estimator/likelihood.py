@@ -11,7 +11,9 @@ left out: it is a constant within one batch, but poses scored in different calls
 
 Contact. When the frame reports contact and the scene has a contact model, eq. 9's
 ``log sigma((tau_c - phi) / sigma_d)`` of the signed distance ``phi`` between the object at
-the pose and the fixed environment (eq. 8) is added (``contact.likelihood``).
+the pose and the fixed environment (eq. 8) is added (``contact.likelihood``), and with it,
+beyond the paper, ``log sigma((phi + tau_p) / sigma_p)``: a pose sunk into the environment is
+as impossible as one far from it (``contact.penetration_*``).
 
 Missing sensors. A sensor whose IoU column is NaN for every particle is absent from
 this frame (no image, or no usable observed mask). Its importance weight is dropped and
@@ -41,7 +43,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..config import Config
-from ..contact.likelihood import log_contact_likelihood
+from ..contact.likelihood import log_contact_likelihood, log_penetration_likelihood
 from ..filter.result import valid_log_likelihood
 from ..records import Frame
 from .observation import Observation
@@ -271,7 +273,10 @@ class Likelihood:
                                     self.nu if len(self.nu) else None, renormalise=False) / self.cfg.filter.temperature
         if self.contact:
             phi = self.scene.phi(self.frame.T_world_ee @ T_ee_object)
-            score = score + log_contact_likelihood(phi, True, self.cfg.contact.margin_m, self.cfg.contact.softness_m)
+            c = self.cfg.contact
+            score = score + log_contact_likelihood(phi, True, c.margin_m, c.softness_m)
+            if c.penetration_softness_m is not None:
+                score = score + log_penetration_likelihood(phi, c.penetration_tolerance_m, c.penetration_softness_m)
         score, invalid = valid_log_likelihood(score)
         self.invalid += invalid
         self.evaluated += len(score)

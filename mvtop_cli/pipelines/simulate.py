@@ -33,7 +33,7 @@ from ..io.mcap_writer import LogWriter
 from ..sim import gripper as grip
 from ..sim import hard_scene as hard
 from ..sim import robot
-from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects, visible_mask
+from ..sim.camera_render import CameraSceneRenderer, Material, PhotometricOptions, apply_camera_effects
 from ..sim.episode import Collider, EpisodeOptions, EpisodeState, plan_episode, state_at
 from ..sim.object_file import resolve_object
 from ..sim.scene import board_mesh, camera_placements, receptacle_pose, table_mesh
@@ -325,7 +325,7 @@ def write_images(log, st: EpisodeState, capture: dict[str, int | None], states: 
         for i, (_, T_obj_cable) in enumerate(cables):
             cam_renderer.set_pose(f"cable{i}", T_world_obj @ T_obj_cable)
         pinhole = replace(cam.camera, distortion=np.zeros(5))
-        linear, scene_depth = cam_renderer.render(pinhole, cam.T_world_camera)
+        linear, _ = cam_renderer.render(pinhole, cam.T_world_camera)
         if lens is not None:  # the pinhole render seen through the lens
             import cv2
 
@@ -335,8 +335,8 @@ def write_images(log, st: EpisodeState, capture: dict[str, int | None], states: 
             log, f"/cameras/{cam.name}/image", rgb, t, f"{cam.name}_optical", options.image_format, options.jpeg_quality
         )
         if options.mask_topics:
-            obj_depth = cam_renderer.render_depth_only(pinhole, cam.T_world_camera, only="object")
-            mask = object_mask_image(visible_mask(scene_depth, obj_depth), lens, options.mask_error_px, mask_rng)
+            visible = cam_renderer.visible_mask(pinhole, cam.T_world_camera, only="object")
+            mask = object_mask_image(visible, lens, options.mask_error_px, mask_rng)
             topic = f"/cameras/{cam.name}/mask" + ("/compressed" if options.mask_format == "png" else "")
             log.write_mask(topic, mask, t, f"{cam.name}_optical", fmt=options.mask_format)
         log.write_camera_info(f"/cameras/{cam.name}/camera_info", cam.camera, t, f"{cam.name}_optical")

@@ -119,26 +119,24 @@ class CameraSceneRenderer:
         return color.astype(np.float32) / 255.0, depth
 
     def render_depth_only(self, camera: PinholeCamera, T_world_camera: np.ndarray, only: str) -> np.ndarray:
-        """Depth (H, W) [m] of the mesh ``only`` alone (every other mesh hidden)."""
+        """Depth (H, W) [m] of the mesh ``only`` alone (0 = not covered), sampled at pixel centres."""
         self._set_camera(camera, T_world_camera)
-        hidden = [m for n, m in self.meshes.items() if n != only and m.is_visible]
-        for m in hidden:
-            m.is_visible = False
-        try:
-            depth = self.renderer.render(self.scene, flags=self._pr.RenderFlags.DEPTH_ONLY)
-        finally:
-            for m in hidden:
-                m.is_visible = True
-        return depth
+        # SEG: one sample at each pixel centre, the OpenCV convention of ``camera``; a plain
+        # depth render reads the multisampled buffer's first sample, about (-0.1, +0.4) px off
+        return self.renderer.render(self.scene, flags=self._pr.RenderFlags.DEPTH_ONLY | self._pr.RenderFlags.SEG,
+                                    seg_node_map={self.nodes[only]: 255})
+
+    def visible_mask(self, camera: PinholeCamera, T_world_camera: np.ndarray, only: str) -> np.ndarray:
+        """Pixels (H, W) bool where the mesh ``only`` is the nearest surface of the scene,
+        sampled at pixel centres (the true object mask a perfect segmenter would give)."""
+        self._set_camera(camera, T_world_camera)
+        seg = {node: (255, 255, 255) if name == only else (1, 1, 1) for name, node in self.nodes.items()}
+        colour, _ = self.renderer.render(self.scene, flags=self._pr.RenderFlags.SEG, seg_node_map=seg)
+        return colour[..., 0] == 255
 
     def close(self) -> None:
         """Drop the scene (the shared context stays for the next renderer)."""
         self.scene.clear()
-
-
-def visible_mask(scene_depth: np.ndarray, part_depth: np.ndarray, tol_m: float = 2e-4) -> np.ndarray:
-    """Pixels (H, W) bool where the part is the nearest surface in the full scene."""
-    return (part_depth > 0) & (np.abs(scene_depth - part_depth) <= tol_m)
 
 
 def apply_camera_effects(linear_rgb: np.ndarray, options: PhotometricOptions, rng: np.random.Generator) -> np.ndarray:
