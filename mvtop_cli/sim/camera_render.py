@@ -62,7 +62,6 @@ class CameraSceneRenderer:
         self.shadows = shadows
         self.scene = pr.Scene(bg_color=[0.55, 0.58, 0.62, 1.0], ambient_light=[ambient] * 3)
         self.nodes: dict[str, object] = {}
-        self.meshes: dict[str, object] = {}
         # pyrender draws opaque meshes sorted by the distance of their node origin from the
         # camera, ties in the order of a Python set; so each mesh is recentred on its bounding
         # box centre (folded back into the node pose) to make the draw order, and with it any
@@ -79,7 +78,6 @@ class CameraSceneRenderer:
             mesh = mesh.copy()
             mesh.apply_translation(-centre)
             pm = pr.Mesh.from_trimesh(mesh, material=material, smooth=False)
-            self.meshes[name] = pm
             self.nodes[name] = self.scene.add(pm, pose=np.eye(4), name=name)
             self.set_pose(name, np.eye(4))
         self._key = self.scene.add(pr.DirectionalLight(color=np.ones(3), intensity=3.0), pose=np.eye(4))
