@@ -33,8 +33,11 @@ def mvtop(*args: str) -> subprocess.CompletedProcess:
 
 def interrupt_after(out: Path, frames: int, sig: int) -> subprocess.CompletedProcess:
     """Start the estimate into ``out``, send ``sig`` once ``frames`` frames are checkpointed."""
+    # a terminal's Ctrl-C disposition, also when the tests run as a background job (which
+    # starts with SIGINT ignored, and a child inherits that)
     proc = subprocess.Popen([sys.executable, "-m", "mvtop_cli", *ARGS, "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 300
     while frames_done(out) < frames and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
