@@ -169,11 +169,8 @@ class ParticleSet:
         """Weighted mean and tangent-space covariance (``se3.pose_spread``). With ``fold``
         (see ``Fold``), of the folded poses: first onto the heaviest particle, then, for a
         reference that does not depend on which particle that was, onto the mean of that."""
-        w = self.weights()
-        if fold is None:
-            mean, cov = se3.pose_spread(self.poses, w)
-        else:
-            mean, cov = se3.pose_spread(self.folded(fold), w)
+        poses = self.poses if fold is None else self.folded(fold)
+        mean, cov = se3.pose_spread(poses, self.weights())
         return Spread(mean=mean, covariance=cov)
 
     def folded(self, fold: Fold) -> np.ndarray:
