@@ -1,8 +1,9 @@
 """NEES of each run's final covariance in a `mvtop benchmark accuracy` folder, as the particles'
-spread alone and with the evidence's widths added (`output.covariance: particles_and_evidence`,
+spread alone and with the evidence's widths added, times each of ``--factors``
+(`output.covariance: particles_and_evidence`, `output.evidence_width_factor`,
 estimator/evidence.py), recomputed from each run's summary.json by `mvtop eval`'s own NEES.
-Prints one line per run and, per method, the fraction within the chi-square 95 % bound.
-Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--json OUT.json]"""
+Prints one line per run and, per method and object, the fraction within the chi-square 95 % bound.
+Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--json OUT.json]"""
 import argparse
 import collections
 import json
@@ -32,8 +33,10 @@ def nees_with(run: Path, log: Path, covariance: np.ndarray) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bench", type=Path)
+    ap.add_argument("--factors", default="1,3", help="comma-separated evidence width factors")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
+    factors = [float(f) for f in args.factors.split(",")]
     rows = []
     for run in sorted((args.bench / "runs").iterdir()):
         if not (run / "result.json").is_file():
@@ -50,25 +53,29 @@ def main() -> None:
         widths = np.array([np.inf if v is None else v for v in ev["likelihood_sigma_translation_m"]]
                           + [np.inf if v is None else np.radians(v) for v in ev["likelihood_sigma_rotation_deg"]])
         reported = np.array(summary["final"]["covariance_ee"])
-        # runs made before output.covariance existed reported the particles' spread alone
-        mode = (yaml.safe_load((run / "config.resolved.yaml").read_text()).get("output") or {}).get("covariance",
-                                                                                                   "particles")
-        particles = reported if mode == "particles" else reported - evidence_covariance(widths, prior)
+        # runs made before output.covariance existed reported the particles' spread alone, before
+        # output.evidence_width_factor existed the widths as they are
+        output = yaml.safe_load((run / "config.resolved.yaml").read_text()).get("output") or {}
+        mode, made_with = output.get("covariance", "particles"), float(output.get("evidence_width_factor", 1.0))
+        particles = reported if mode == "particles" else reported - evidence_covariance(widths, prior, made_with)
         row = {"run": run.name, "object": obj, "method": method, "bound": result["final"]["nees_bound"],
                "insertable": result["final"]["insertable"], "error_mm": result["final"]["pose_error_mm"],
-               "nees_particles": nees_with(run, log, particles),
-               "nees_particles_and_evidence": nees_with(run, log, particles + evidence_covariance(widths, prior))}
+               "nees_particles": nees_with(run, log, particles)}
+        for f in factors:
+            row[f"nees_evidence_x{f:g}"] = nees_with(run, log, particles + evidence_covariance(widths, prior, f))
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
-    by_method = collections.defaultdict(list)
+    keys = ["nees_particles"] + [f"nees_evidence_x{f:g}" for f in factors]
+    groups = collections.defaultdict(list)
     for r in rows:
-        by_method[r["method"]].append(r)
-    for method, rs in sorted(by_method.items()):
-        frac = {k: np.mean([r[k] <= r["bound"] for r in rs]) for k in ("nees_particles", "nees_particles_and_evidence")}
-        print(f"{method}: {len(rs)} runs, NEES within the 95 % bound: particles {frac['nees_particles']:.0%}, "
-              f"particles and evidence {frac['nees_particles_and_evidence']:.0%}")
+        groups[(r["method"], "all")].append(r)
+        groups[(r["method"], r["object"])].append(r)
+    for (method, obj), rs in sorted(groups.items()):
+        within = {k: sum(r[k] <= r["bound"] for r in rs) for k in keys}
+        print(f"{method:7s} {obj:10s} {len(rs):3d} runs, NEES within the 95 % bound: particles {within[keys[0]]}, "
+              + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:])))
 
 
 if __name__ == "__main__":

@@ -14,9 +14,11 @@ Sign convention: negative inside environment solids, positive outside, metres.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -476,6 +478,38 @@ def _cache_key(surfaces, origin, h, shape, band_cells, sweeps) -> str:
     return digest.hexdigest()[:32]
 
 
+def _load_cached(path: Path, shape: tuple[int, int, int]) -> EnvironmentSDF | None:
+    """The grid stored at ``path``, or None when there is none or it cannot be read (a
+    truncated or foreign file is rebuilt and overwritten, never trusted)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as data:
+            sdf = EnvironmentSDF(data["values"], data["origin"], float(data["spacing_m"]))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    return sdf if sdf.shape == tuple(shape) else None
+
+
+def _store(path: Path, sdf: EnvironmentSDF) -> None:
+    """Write the grid to ``path`` atomically; a cache folder that cannot be written only
+    costs the next run the build."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".npz.tmp", dir=path.parent)
+    except OSError:
+        return
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, values=sdf.values, origin=sdf.origin, spacing_m=sdf.spacing_m)
+        os.replace(tmp, path)
+    except BaseException as err:  # no half-written file left behind, even on Ctrl-C
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if not isinstance(err, OSError):
+            raise
+
+
 class EnvironmentSDF:
     """Signed distance [m] to the environment, sampled on a regular grid and interpolated
     trilinearly; negative inside the environment's solids.
@@ -591,9 +625,9 @@ class EnvironmentSDF:
         if cache_dir is not None:
             key = _cache_key(surfaces, origin, h, shape, band_cells, sweeps)
             cache_path = Path(cache_dir) / f"env_sdf_{key}.npz"
-            if cache_path.is_file():
-                with np.load(cache_path) as data:
-                    return cls(data["values"], data["origin"], float(data["spacing_m"]))
+            cached = _load_cached(cache_path, shape)
+            if cached is not None:
+                return cached
 
         values = None
         for vertices, faces in surfaces:
@@ -602,11 +636,7 @@ class EnvironmentSDF:
         sdf = cls(values, origin, h)
 
         if cache_path is not None:
-            cache_path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(suffix=".npz", dir=cache_path.parent)
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, values=sdf.values, origin=sdf.origin, spacing_m=sdf.spacing_m)
-            os.replace(tmp, cache_path)
+            _store(cache_path, sdf)
         return sdf
 
     def query(self, points_world: np.ndarray) -> np.ndarray:

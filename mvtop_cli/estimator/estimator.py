@@ -187,7 +187,8 @@ class Estimator:
         if evidence is not None and self.cfg.output.covariance == "particles_and_evidence":
             # the particles can collapse further than the evidence supports (tempering, resampling):
             # the reported covariance adds what the likelihood itself leaves open about the estimate
-            covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma)
+            covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma,
+                                                          self.cfg.output.evidence_width_factor)
         n = len(result.particles.poses)
         keep = self.rng.choice(n, size=min(self.cfg.output.track_particles, n), replace=False)
         keep.sort()

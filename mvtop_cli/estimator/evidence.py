@@ -90,10 +90,13 @@ def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_o
     return float(centre), sigma
 
 
-def evidence_covariance(likelihood_sigma: np.ndarray, prior_sigma: np.ndarray) -> np.ndarray:
+def evidence_covariance(likelihood_sigma: np.ndarray, prior_sigma: np.ndarray, factor: float = 1.0) -> np.ndarray:
     """The covariance (6, 6) the evidence alone supports about the estimate: the likelihood's
-    widths (6,) squared on the diagonal, an axis it does not pin (``inf``) taking the grasp
-    prior's standard deviation ``prior_sigma`` (6,) instead (the evidence leaves the prior's
-    spread there). Added to the particles' covariance for the reported one (``output.covariance``)."""
-    sigma = np.where(np.isfinite(likelihood_sigma), likelihood_sigma, np.asarray(prior_sigma, dtype=np.float64))
+    widths (6,) times ``factor`` squared on the diagonal, an axis it does not pin (``inf``) taking
+    the grasp prior's standard deviation ``prior_sigma`` (6,) instead (the evidence leaves the
+    prior's spread there), never wider than the prior. Added to the particles' covariance for the
+    reported one (``output.covariance``; ``factor`` is ``output.evidence_width_factor``)."""
+    prior_sigma = np.asarray(prior_sigma, dtype=np.float64)
+    sigma = np.where(np.isfinite(likelihood_sigma), factor * np.asarray(likelihood_sigma, dtype=np.float64),
+                     prior_sigma)
     return np.diag(np.minimum(sigma, prior_sigma) ** 2)

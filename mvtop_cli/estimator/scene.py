@@ -18,6 +18,7 @@ from ..contact.sdf import ObjectSignedDistance
 from ..errors import MeshError
 from ..filter.health import warning
 from ..geometry import se3
+from ..io.cache import cache_dir
 from ..io.meshes import load_mesh
 from ..render.numba_renderer import NumbaMaskRenderer
 
@@ -113,7 +114,7 @@ class SceneModel:
                                          clearance_m=self.cfg.object.clearance_m))
         self.sdf = ObjectSignedDistance.from_meshes(
             self.object_mesh, meshes, poses, bounds, rng=np.random.default_rng(0), resolution_m=res,
-            n_points=1000, use_fcl=False,
+            n_points=1000, use_fcl=False, cache_dir=cache_dir(),
         )
 
     @property

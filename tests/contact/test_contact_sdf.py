@@ -166,6 +166,22 @@ def test_cache_round_trip(geo, tmp_path, pocket_mesh):
     assert c.query(np.array([0.0, 0.0, 0.012])) == pytest.approx(0.012 - geo.FLOOR_Z - 1 * MM, abs=1e-7)
 
 
+def test_a_corrupt_cache_entry_is_rebuilt_and_an_unwritable_cache_only_costs_the_build(tmp_path, pocket_mesh):
+    bounds = np.array([[-0.01, -0.01, 0.005], [0.01, 0.01, 0.015]])
+    a = EnvironmentSDF.from_meshes([pocket_mesh], None, bounds, 0.5 * MM, cache_dir=tmp_path)
+    (entry,) = tmp_path.glob("env_sdf_*.npz")
+    entry.write_bytes(entry.read_bytes()[:100])  # truncated, e.g. by a full disk
+    b = EnvironmentSDF.from_meshes([pocket_mesh], None, bounds, 0.5 * MM, cache_dir=tmp_path)
+    np.testing.assert_array_equal(a.values, b.values)
+    with np.load(entry) as data:  # and the entry was written again, whole
+        np.testing.assert_array_equal(data["values"], a.values)
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    c = EnvironmentSDF.from_meshes([pocket_mesh], None, bounds, 0.5 * MM, cache_dir=blocked / "cache")
+    np.testing.assert_array_equal(a.values, c.values)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([entry.name, "file"])  # no temporary left
+
+
 def test_open_mesh_rejected():
     box = trimesh.creation.box(extents=[0.01] * 3)
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-1])

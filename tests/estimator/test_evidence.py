@@ -66,3 +66,50 @@ def test_evidence_covariance_takes_the_prior_where_the_likelihood_is_flat_and_ne
     np.testing.assert_allclose(np.sqrt(np.diag(cov)), [2e-4, prior[1], prior[2], np.radians(0.3), np.radians(0.3),
                                                        prior[5]])
     assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
+
+
+def test_evidence_covariance_scales_the_widths_by_the_factor_up_to_the_prior():
+    from mvtop_cli.estimator.evidence import evidence_covariance
+
+    prior = np.full(6, 1e-3)
+    widths = np.array([1e-4, 2e-4, 5e-4, np.inf, 1e-4, 1e-4])
+    sd = np.sqrt(np.diag(evidence_covariance(widths, prior, factor=3.0)))
+    # 3 x the widths, the prior where the axis is flat or 3 x the width would exceed it
+    np.testing.assert_allclose(sd, [3e-4, 6e-4, 1e-3, 1e-3, 3e-4, 3e-4])
+    np.testing.assert_array_equal(evidence_covariance(widths, prior), evidence_covariance(widths, prior, 1.0))
+
+
+def test_the_reported_covariance_adds_the_scaled_widths_to_the_particles(tmp_path):
+    """`output.evidence_width_factor` changes the reported covariance by exactly the evidence term
+    and leaves the estimate alone (the factor is a reading, not part of the filter)."""
+    import dataclasses
+    from pathlib import Path
+
+    from mvtop_cli.config import load_config
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.estimator.evidence import evidence_covariance
+    from mvtop_cli.io.frames import FrameReader
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+
+    root = Path(__file__).resolve().parents[2]
+    base = load_config(root / "configs" / "cube.yaml")
+    base = dataclasses.replace(base, filter=dataclasses.replace(base.filter, num_particles=100))
+    out = {}
+    for factor in (1.0, 3.0):
+        cfg = dataclasses.replace(base, output=dataclasses.replace(base.output, evidence_width_factor=factor))
+        with McapLog(root / "sample_logs" / "cube.mcap") as log:
+            reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+            est = Estimator.from_config(cfg, lambda fr, t, reader=reader: reader.tf.lookup("world", fr, t))
+            for frame in reader:
+                fe = est.step(frame)
+                if frame.index == 2:
+                    break
+        out[factor] = (fe, est.prior.sigma)
+    (a, prior), (b, _) = out[1.0], out[3.0]
+    np.testing.assert_array_equal(a.T_ee_object, b.T_ee_object)
+    sigma = a.evidence.likelihood_sigma
+    assert np.isfinite(sigma).sum() >= 3  # the test means something only where the evidence pins axes
+    expected = evidence_covariance(sigma, prior, 3.0) - evidence_covariance(sigma, prior, 1.0)
+    np.testing.assert_allclose(b.covariance - a.covariance, expected, rtol=1e-9, atol=1e-18)
+    assert np.trace(expected) > 0
