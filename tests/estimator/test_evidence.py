@@ -79,7 +79,7 @@ def test_evidence_covariance_scales_the_widths_by_the_factor_up_to_the_prior():
     np.testing.assert_array_equal(evidence_covariance(widths, prior), evidence_covariance(widths, prior, 1.0))
 
 
-def test_the_reported_covariance_adds_the_scaled_widths_to_the_particles(tmp_path):
+def test_the_reported_covariance_adds_the_scaled_widths_to_the_particles():
     """`output.evidence_width_factor` changes the reported covariance by exactly the evidence term
     and leaves the estimate alone (the factor is a reading, not part of the filter)."""
     import dataclasses
