@@ -14,10 +14,8 @@ Sign convention: negative inside environment solids, positive outside, metres.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mvtop_cli.errors import ConfigError, MeshError
+from mvtop_cli.io.atomic import atomic_path
 
 # Bump when the grid construction changes, so that cached grids are rebuilt.
 _CACHE_VERSION = 1
@@ -492,22 +491,14 @@ def _load_cached(path: Path, shape: tuple[int, int, int]) -> EnvironmentSDF | No
 
 
 def _store(path: Path, sdf: EnvironmentSDF) -> None:
-    """Write the grid to ``path`` atomically; a cache folder that cannot be written only
-    costs the next run the build."""
+    """Write the grid to ``path`` atomically (``io.atomic``: no half-written entry, even on
+    Ctrl-C); a cache folder that cannot be written only costs the next run the build."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".npz.tmp", dir=path.parent)
-    except OSError:
-        return
-    try:
-        with os.fdopen(fd, "wb") as f:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez(f, values=sdf.values, origin=sdf.origin, spacing_m=sdf.spacing_m)
-        os.replace(tmp, path)
-    except BaseException as err:  # no half-written file left behind, even on Ctrl-C
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if not isinstance(err, OSError):
-            raise
+    except OSError:
+        pass
 
 
 class EnvironmentSDF:
