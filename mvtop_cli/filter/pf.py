@@ -24,10 +24,9 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-from scipy.special import logsumexp
 
 from .health import JumpCheck, check_jump
-from .particles import Fold, ParticleSet, Spread
+from .particles import Fold, ParticleSet, Spread, log_sum_exp
 from .resampling import get_scheme, resample_if_needed
 from .result import LogLikelihoodFn, StepResult, evaluate, finish
 from .smc import TemperedRefinement, check_shrink
@@ -191,7 +190,7 @@ class ParticleFilter:
         lw = prior_lw + log_lik
         flags: list[str] = []
         if np.isfinite(lw).any():
-            log_evidence = float(logsumexp(lw))
+            log_evidence = log_sum_exp(lw)
             posterior = particles.with_log_weights(lw - log_evidence)
         else:
             log_evidence = -np.inf

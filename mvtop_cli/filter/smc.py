@@ -9,10 +9,17 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.special import logsumexp
 
 from ..geometry import se3
-from .particles import Fold, ParticleSet, Spread, ess_from_log_weights, largest_exponent, normalise_log_weights
+from .particles import (
+    Fold,
+    ParticleSet,
+    Spread,
+    ess_from_log_weights,
+    largest_exponent,
+    log_sum_exp,
+    normalise_log_weights,
+)
 from .resampling import get_scheme
 from .result import LogLikelihoodFn, StepResult, evaluate, finish
 
@@ -65,7 +72,7 @@ class _KernelPrior:
 
     def __init__(self, xi: np.ndarray, log_w: np.ndarray, floor_var: np.ndarray) -> None:
         keep = np.isfinite(log_w)
-        xi, log_w = xi[keep], log_w[keep] - logsumexp(log_w[keep])
+        xi, log_w = xi[keep], log_w[keep] - log_sum_exp(log_w[keep])
         w = np.exp(log_w)
         n_eff = 1.0 / np.sum(w**2)
         h2 = (4.0 / ((_DIM + 2) * n_eff)) ** (2.0 / (_DIM + 4))
@@ -360,7 +367,7 @@ class TemperedRefinement:
                     delta = min(needed, remaining)
                     flags.append("tempering_forced")
                 increment = np.where(np.isfinite(state.log_lik), delta * state.log_lik, -np.inf)
-                log_evidence += float(logsumexp(uniform + increment))
+                log_evidence += log_sum_exp(uniform + increment)
                 lw = normalise_log_weights(uniform + increment)
                 beta = 1.0 if delta >= remaining else beta + delta
                 ess = ess_from_log_weights(lw)
