@@ -8,7 +8,7 @@ import numpy as np
 
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render import raster
-from mvtop_cli.render.base import Occluder, RendererBase, RenderMode
+from mvtop_cli.render.base import DEFAULT_ZNEAR_M, Occluder, RendererBase, RenderMode
 from mvtop_cli.render.iou import iou_from_counts
 from mvtop_cli.render.mesh import RenderMesh
 from mvtop_cli.render.roi import Roi
@@ -29,6 +29,19 @@ class NumbaMaskRenderer(RendererBase):
 
     znear_m : near clipping distance [m]
     """
+
+    # Threshold maps kept for scoring, per occluder poses, window and gel plane: a frame's
+    # likelihood calls all score against the same few (one per sensor).
+    _THRESHOLD_CACHE_SIZE = 32
+
+    def __init__(self, znear_m: float = DEFAULT_ZNEAR_M) -> None:
+        super().__init__(znear_m)
+        self._scoring_thresholds: dict[tuple, tuple[np.ndarray, float, bool, np.ndarray]] = {}
+
+    def add_mesh(self, mesh_id: str, vertices: np.ndarray, faces: np.ndarray) -> None:
+        """Register (or replace) mesh ``mesh_id``; threshold maps rendered before are dropped."""
+        super().add_mesh(mesh_id, vertices, faces)
+        self._scoring_thresholds.clear()
 
     def _invdepth(self, mesh: RenderMesh, T: np.ndarray, intr: np.ndarray, w: int, h: int, thr: np.ndarray | None):
         """Largest inverse depth (N, h * w) float32 [1/m] of ``mesh`` at poses ``T``; fragments
@@ -60,6 +73,32 @@ class NumbaMaskRenderer(RendererBase):
         if plane_m is not None:
             np.maximum(thr, 1.0 / plane_m, out=thr)
         return thr
+
+    def _scoring_threshold(
+        self,
+        occluders: Sequence[Occluder] | None,
+        intr: np.ndarray,
+        w: int,
+        h: int,
+        plane_m: float | None,
+    ) -> tuple[np.ndarray, float, bool, np.ndarray]:
+        """``score_masks_kernel``'s threshold arguments: the map (``_threshold``, or a dummy),
+        its least value, whether there is one, and its ``raster.threshold_columns``; cached."""
+        key = (tuple((m, np.asarray(T, dtype=np.float64).tobytes()) for m, T in occluders or ()),
+               intr.tobytes(), w, h, plane_m)
+        hit = self._scoring_thresholds.get(key)
+        if hit is not None:
+            return hit
+        thr = self._threshold(occluders, intr, w, h, plane_m)
+        if thr is None:
+            out = (np.zeros(1), 0.0, False, np.zeros((1, 4)))
+        else:
+            t_min = float(thr.min())
+            out = (thr, t_min, True, raster.threshold_columns(thr, h, w, t_min))
+        if len(self._scoring_thresholds) >= self._THRESHOLD_CACHE_SIZE:
+            self._scoring_thresholds.clear()
+        self._scoring_thresholds[key] = out
+        return out
 
     def render_masks(
         self,
@@ -110,15 +149,12 @@ class NumbaMaskRenderer(RendererBase):
         obs = np.asarray(observed, dtype=bool)
         if obs.shape != (h, w):
             raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
-        obs = np.ascontiguousarray(obs).reshape(-1).view(np.uint8)
-        thr = self._threshold(occluders, intr, w, h, plane)
-        use_thr = thr is not None
-        t = thr if use_thr else np.zeros(1)
+        t, t_min, use_thr, rows = self._scoring_threshold(occluders, intr, w, h, plane)
         area = np.empty(len(T), dtype=np.int64)
         inter = np.empty(len(T), dtype=np.int64)
         raster.score_masks_kernel(
             T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m,
-            t, float(t.min()), use_thr, raster.chunk_count(len(T)), obs, area, inter,
+            t, t_min, use_thr, rows, raster.chunk_count(len(T)), raster.pack_rows(obs), area, inter,
         )  # fmt: skip
         return iou_from_counts(area, inter, float(obs.sum()) + observed_outside, empty_score)
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 
+from mvtop_cli.geometry import se3
 from mvtop_cli.render import Roi, iou_from_counts, iou_scores, roi_for_particles
 
 
@@ -53,3 +55,47 @@ def test_fused_scores_equal_iou_of_rendered_masks(scene, fast):
     fused = fast.score_masks("connector", T, scene.camera, roi, observed, observed_outside=outside)
     np.testing.assert_array_equal(fused, iou_scores(masks, observed, observed_outside=outside))
     assert fused.argmax() == 0 and fused[0] > 0.9
+
+
+def _two_boxes():
+    """A non-convex closed mesh: two overlapping boxes, whose front faces overlap on screen."""
+    a = trimesh.creation.box((0.02, 0.006, 0.006))
+    b = trimesh.creation.box((0.006, 0.02, 0.012))
+    b.apply_translation([0.004, 0.003, -0.002])
+    return trimesh.util.concatenate([a, b])
+
+
+@pytest.mark.parametrize("case", ["plain", "slanted occluder", "tactile", "tactile occluded", "near plane"])
+def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case):
+    # Scoring sets whole runs of a row at once and bisects for where a threshold cuts a row;
+    # its IoU must equal the IoU of the masks rendered pixel by pixel, in every mode.
+    rng = np.random.default_rng(11)
+    fast.add_mesh("two_boxes", *(lambda m: (m.vertices, m.faces))(_two_boxes()))
+    kw = {}
+    if case.startswith("tactile"):
+        camera = scene.tactile
+        T = scene.pressed_poses(rng, fast.mesh("two_boxes").vertices, 48, depth_range_m=(0.0001, 0.002))
+        kw = dict(mode="tactile", gel_distance_m=scene.gel_distance_m, penetration_threshold_m=2e-5)
+    elif case == "near plane":
+        camera = scene.camera
+        T = scene.camera_particles(rng, 48, 0.004, spread_m=0.002)  # cut by z = 1 mm
+    else:
+        camera = scene.camera
+        T = scene.camera_particles(rng, 48, 0.12, spread_m=0.003)  # ~100-200 px: rows of 2-4 words
+    if case.endswith("occluder") or case.endswith("occluded"):
+        # A wall tilted about y through the objects, its edge among them: left of the edge
+        # each pixel has its own threshold, right of it the plain one.
+        tilt = se3.rotvec_to_matrix(np.array([0.0, 0.6, 0.0]))
+        through = T[:, :3, 3].mean(axis=0)
+        if case.startswith("tactile"):
+            through[2] = scene.gel_distance_m - 0.0005  # among the contact patches
+        kw["occluders"] = [("wall", se3.make_pose(tilt, through + tilt @ [-0.1 + 0.001, 0.0, 0.0]))]
+    roi = Roi.full(camera) if case == "near plane" else roi_for_particles(fast.mesh("two_boxes"), T, camera)
+    masks = fast.render_masks("two_boxes", T, camera, roi, **kw)
+    observed = masks[0] ^ (rng.random(masks[0].shape) < 0.05)
+    fused = fast.score_masks("two_boxes", T, camera, roi, observed, observed_outside=3.0, **kw)
+    assert masks.sum(axis=(1, 2)).min() < masks.sum(axis=(1, 2)).max()  # masks of different areas
+    if "occlu" in case:
+        plain = fast.render_masks("two_boxes", T, camera, roi, **{k: v for k, v in kw.items() if k != "occluders"})
+        assert (plain & ~masks).any() and masks.any()  # the wall hides part of the object, not all
+    np.testing.assert_array_equal(fused, iou_scores(masks, observed, observed_outside=3.0))
