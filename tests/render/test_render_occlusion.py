@@ -50,3 +50,26 @@ def test_occluders_combine_and_score(scene, fast):
     observed = both[0]
     scores = fast.score_masks("cube", T, scene.camera, roi, observed, occluders=[left, right])
     assert scores[0] == 1.0 and (scores[1:] < 1.0).all()
+
+
+def test_scores_follow_a_replaced_occluder_mesh(scene):
+    # Scoring keeps each occluder's threshold map per pose and window; registering the mesh
+    # anew must drop it, or the old occluder would keep hiding the object.
+    import trimesh
+
+    from mvtop_cli.render import NumbaMaskRenderer
+
+    r = NumbaMaskRenderer()
+    r.add_mesh("cube", scene.cube().vertices, scene.cube().faces)
+    big = trimesh.creation.box((0.2, 0.2, 0.002))
+    r.add_mesh("occ", big.vertices, big.faces)
+    T = scene.camera_particles(np.random.default_rng(5), 6, 0.45, spread_m=0.002)
+    roi = roi_for_particles(r.mesh("cube"), T, scene.camera)
+    occ = [("occ", se3.make_pose(np.eye(3), [-0.1, 0.0, 0.35]))]
+    observed = r.render_masks("cube", T[:1], scene.camera, roi)[0]
+    hidden = r.score_masks("cube", T, scene.camera, roi, observed, occluders=occ)
+    small = trimesh.creation.box((0.001, 0.001, 0.001))
+    r.add_mesh("occ", small.vertices, small.faces)
+    shown = r.score_masks("cube", T, scene.camera, roi, observed, occluders=occ)
+    assert shown[0] == 1.0 and hidden[0] < 0.95  # the half wall hid part of the pose observed
+    np.testing.assert_array_equal(shown, r.score_masks("cube", T, scene.camera, roi, observed))
