@@ -92,25 +92,21 @@ def _set_passing_run(bits, row, a, b, izy, P, u0, t):
     so the passing pixels are a run at one end of ``a .. b``, its end found by bisection."""
     pa = not (izy + P * (a - u0) <= t)
     pb = not (izy + P * (b - u0) <= t)
-    if pa and pb:
-        _set_run(bits, row, a, b)
-    elif pa:  # passes at a, fails at b: the run starts at a
-        lo, hi = a, b
-        while hi - lo > 1:
-            mid = (lo + hi) >> 1
-            if not (izy + P * (mid - u0) <= t):
-                lo = mid
-            else:
-                hi = mid
+    if pa == pb:
+        if pa:
+            _set_run(bits, row, a, b)
+        return
+    # The test flips once in a .. b: bisect for the last pixel that agrees with a.
+    lo, hi = a, b
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if (not (izy + P * (mid - u0) <= t)) == pa:
+            lo = mid
+        else:
+            hi = mid
+    if pa:
         _set_run(bits, row, a, lo)
-    elif pb:  # fails at a, passes at b: the run ends at b
-        lo, hi = a, b
-        while hi - lo > 1:
-            mid = (lo + hi) >> 1
-            if not (izy + P * (mid - u0) <= t):
-                hi = mid
-            else:
-                lo = mid
+    else:
         _set_run(bits, row, hi, b)
 
 
