@@ -33,10 +33,13 @@ class NumbaMaskRenderer(RendererBase):
     # Threshold maps kept for scoring, per occluder poses, window and gel plane: a frame's
     # likelihood calls all score against the same few (one per sensor).
     _THRESHOLD_CACHE_SIZE = 32
+    # ``score_masks`` sets runs (``raster.score_runs_kernel``) when the observed mask holds at
+    # least this many pixels per front face; below it the byte mask is faster (raster's notes).
+    RUNS_MIN_PIXELS_PER_FACE = 64
 
     def __init__(self, znear_m: float = DEFAULT_ZNEAR_M) -> None:
         super().__init__(znear_m)
-        self._scoring_thresholds: dict[tuple, tuple[np.ndarray, float, bool, np.ndarray]] = {}
+        self._scoring_thresholds: dict[tuple, tuple[np.ndarray, float, bool, bool]] = {}
 
     def add_mesh(self, mesh_id: str, vertices: np.ndarray, faces: np.ndarray) -> None:
         """Register (or replace) mesh ``mesh_id``; threshold maps rendered before are dropped."""
@@ -81,9 +84,10 @@ class NumbaMaskRenderer(RendererBase):
         w: int,
         h: int,
         plane_m: float | None,
-    ) -> tuple[np.ndarray, float, bool, np.ndarray]:
-        """``score_masks_kernel``'s threshold arguments: the map (``_threshold``, or a dummy),
-        its least value, whether there is one, and its ``raster.threshold_columns``; cached."""
+    ) -> tuple[np.ndarray, float, bool, bool]:
+        """The scoring kernels' threshold arguments: the map (``_threshold``, or a dummy), its
+        least value, whether there is one, and whether it is one value over the window (the
+        runs kernel's condition); cached per occluder poses, window and plane."""
         key = (tuple((m, np.asarray(T, dtype=np.float64).tobytes()) for m, T in occluders or ()),
                intr.tobytes(), w, h, plane_m)
         hit = self._scoring_thresholds.get(key)
@@ -91,10 +95,9 @@ class NumbaMaskRenderer(RendererBase):
             return hit
         thr = self._threshold(occluders, intr, w, h, plane_m)
         if thr is None:
-            out = (np.zeros(1), 0.0, False, np.zeros((1, 4)))
+            out = (np.zeros(1), 0.0, False, True)
         else:
-            t_min = float(thr.min())
-            out = (thr, t_min, True, raster.threshold_columns(thr, h, w, t_min))
+            out = (thr, float(thr.min()), True, bool(thr.min() == thr.max()))
         if len(self._scoring_thresholds) >= self._THRESHOLD_CACHE_SIZE:
             self._scoring_thresholds.clear()
         self._scoring_thresholds[key] = out
@@ -149,13 +152,18 @@ class NumbaMaskRenderer(RendererBase):
         obs = np.asarray(observed, dtype=bool)
         if obs.shape != (h, w):
             raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
-        t, t_min, use_thr, rows = self._scoring_threshold(occluders, intr, w, h, plane)
+        t, t_min, use_thr, constant = self._scoring_threshold(occluders, intr, w, h, plane)
         area = np.empty(len(T), dtype=np.int64)
         inter = np.empty(len(T), dtype=np.int64)
-        raster.score_masks_kernel(
-            T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m,
-            t, t_min, use_thr, rows, raster.chunk_count(len(T)), raster.pack_rows(obs), area, inter,
-        )  # fmt: skip
+        args = (T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m)
+        # Runs pay where the observed part covers many pixels per front face (about half the
+        # faces of a closed mesh face the camera) and the threshold is the same everywhere.
+        if constant and obs.sum() >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
+            raster.score_runs_kernel(*args, t_min, use_thr, raster.chunk_count(len(T)), raster.pack_rows(obs),
+                                     area, inter)
+        else:
+            raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)),
+                                      np.ascontiguousarray(obs).reshape(-1).view(np.uint8), area, inter)
         return iou_from_counts(area, inter, float(obs.sum()) + observed_outside, empty_score)
 
     def render_depth(

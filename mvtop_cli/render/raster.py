@@ -16,22 +16,23 @@ triangles sharing an edge compute a bit-identical crossing ``t`` on every row; o
 to ``floor(t)``, the other from ``ceil(t)``, and no pixel centre between them is missed. This
 relies on exact IEEE arithmetic, hence no ``fastmath`` here.
 
-Scoring (``score_masks_kernel``) keeps no byte mask: each row's span of a triangle is set in
-a bit-packed mask (64 pixels a word) with whole-word stores, and the area and the intersection
-with the observed mask are popcounts over the words. Where the threshold is one value along
-a stretch of the row (everywhere for a tactile gel plane; outside the occluders for a
-camera), the pixels passing it form one run at either end, because the interpolated inverse
-depth is monotone along a row in floating point too (a rounded product and sum of monotone
-terms); the run's end is found by bisection with the same expression a pixel is tested with,
-so the pixels set are exactly those the per-pixel test sets. Where occluders give each pixel
-its own threshold, blocks of 16 columns pass or fail whole when the run's inverse depth clears
-or misses all their thresholds (``threshold_columns``), and are tested pixel by pixel
-otherwise; so are runs shorter than 16 pixels, where bounding costs more than testing.
+Scoring without keeping the masks has two kernels that set and count exactly the same pixels.
+``score_masks_kernel`` sets a byte mask and counts each pixel as it is set. ``score_runs_kernel``,
+for a threshold that is one value over the window (none, or a tactile gel plane without
+occluders), sets each row's span of a triangle in a bit-packed mask (64 pixels a word) with
+whole-word stores and counts by popcount at the end. The pixels passing a constant threshold
+form one run at either end of a span, because the interpolated inverse depth is monotone along
+a row in floating point too (a rounded product and sum of monotone terms); the run's end is
+found by bisection with the same expression a pixel is tested with. Spans shorter than 16
+pixels are tested pixel by pixel, which is cheaper than bounding them. Runs pay where a
+triangle covers many pixels (measured on the sample logs' tactile masks: 2x faster for the
+cube, 1.5x for the shaft peg, 1.1x for the plug) and lose on fine meshes and small windows
+(the connectors: 13-19 % slower), so the renderer picks per call (``NumbaMaskRenderer``).
 
 Cost per pose: a transform per vertex, a plane test per face (back faces of closed meshes are
-culled) and roughly 50 ns per front face plus, per row of a triangle, a few word stores (1-3 ns
-per covered pixel when masks are kept) on this machine, so meshes of a few thousand faces keep
-to tens of microseconds.
+culled) and roughly 50 ns per front face plus 1-3 ns per covered pixel (with runs: a few word
+stores per row of a triangle) on this machine, so meshes of a few thousand faces keep to tens
+of microseconds.
 """
 
 from __future__ import annotations
@@ -48,11 +49,9 @@ from mvtop_cli.render import _threads  # noqa: F401  (sets OMP_WAIT_POLICY befor
 _U, _V, _IZ, _OK = 0, 1, 2, 3
 
 # What a fragment does (``mode``): set a byte mask, keep the largest inverse depth, or set a
-# bit-packed mask (``bits``, ``nw`` uint64 words a row).
+# bit-packed mask (``bits``, ``nw`` uint64 words a row; the threshold must be constant).
 MODE_MASK, MODE_ZBUF, MODE_BITS = 0, 1, 2
-# Columns per block of ``threshold_columns``' least and greatest thresholds: 16. Runs of a
-# row shorter than that are tested pixel by pixel: cheaper than bounding them.
-_BLOCK_SHIFT = 4
+# Spans shorter than this [pixels] are set pixel by pixel in MODE_BITS.
 _SHORT_RUN = 16
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
@@ -144,15 +143,13 @@ def _span(inv_a, b, c, sa, y, lo, hi):
 @njit(cache=True, inline="always")
 def _raster_triangle(
     u0, v0, iz0, u1, v1, iz1, u2, v2, iz2,
-    width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ,
+    width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
 ):  # fmt: skip
     """Fill one projected triangle. ``MODE_MASK`` sets unset pixels whose fragment passes
     ``thr`` and returns (new pixels, new pixels where ``obs``); ``MODE_ZBUF`` keeps the largest
     inverse depth per pixel in ``zbuf``; ``MODE_BITS`` sets the passing pixels in ``bits``
-    (row ``y`` at word ``y * nw``), testing pixel by pixel only in ``occ[y, 0] .. occ[y, 1]``,
-    the columns whose threshold is above ``thr_min`` (``threshold_columns``), and there only in
-    blocks of columns whose thresholds the run's inverse depth does not clear or fail whole.
-    The last two return (0, 0)."""
+    (row ``y`` at word ``y * nw``) for a threshold equal to ``thr_min`` everywhere. The last
+    two return (0, 0)."""
     if use_thr and max(iz0, max(iz1, iz2)) <= thr_min:
         return 0, 0
     # Pixel-centre bounding box, clipped to the image.
@@ -190,43 +187,24 @@ def _raster_triangle(
             continue
         base = yi * iw
         izy = iz0 + Q * (y - v0)
-        if mode == MODE_BITS and (not use_thr or (bisect and hi - lo >= _SHORT_RUN)):
+        if mode == MODE_BITS:
             ilo, ihi = int(lo), int(hi)
             row = yi * nw
             if not use_thr:
                 _set_run(bits, row, ilo, ihi)
-                continue
-            olo, ohi = int(occ[yi, 0]), int(occ[yi, 1])
-            if ilo < olo:
-                _set_passing_run(bits, row, ilo, min(ihi, olo - 1), izy, P, u0, thr_min)
-            # Monotone along the row: a run's ends bound its pixels' inverse depths, so a
-            # block of columns passes or fails whole against its least and greatest threshold.
-            for blk in range(max(ilo, olo) >> _BLOCK_SHIFT, (min(ihi, ohi) >> _BLOCK_SHIFT) + 1):
-                ca = max(max(ilo, olo), blk << _BLOCK_SHIFT)
-                cb = min(min(ihi, ohi), ((blk + 1) << _BLOCK_SHIFT) - 1)
-                iza = izy + P * (ca - u0)
-                izb = izy + P * (cb - u0)
-                if min(iza, izb) > occ[yi, 3 + 2 * blk]:
-                    _set_run(bits, row, ca, cb)
-                elif not max(iza, izb) <= occ[yi, 2 + 2 * blk]:
-                    for xi in range(ca, cb + 1):
-                        if not (izy + P * (xi - u0) <= thr[base + xi]):
-                            bits[row + (xi >> 6)] |= np.uint64(1) << np.uint64(xi & 63)
-            if ihi > ohi:
-                _set_passing_run(bits, row, max(ilo, ohi + 1), ihi, izy, P, u0, thr_min)
-            continue
-        if mode == MODE_BITS:  # a short run, or a depth plane that is not finite: pixel by pixel
-            row = yi * nw
-            word = int(lo) >> 6
-            acc = np.uint64(0)
-            for xi in range(int(lo), int(hi) + 1):
-                if xi >> 6 != word:
-                    bits[row + word] |= acc
-                    acc = np.uint64(0)
-                    word = xi >> 6
-                if not use_thr or not (izy + P * (xi - u0) <= thr[base + xi]):
-                    acc |= np.uint64(1) << np.uint64(xi & 63)
-            bits[row + word] |= acc
+            elif bisect and ihi - ilo >= _SHORT_RUN:
+                _set_passing_run(bits, row, ilo, ihi, izy, P, u0, thr_min)
+            else:  # a short span, or a depth plane that is not finite: pixel by pixel
+                word = ilo >> 6
+                acc = np.uint64(0)
+                for xi in range(ilo, ihi + 1):
+                    if xi >> 6 != word:
+                        bits[row + word] |= acc
+                        acc = np.uint64(0)
+                        word = xi >> 6
+                    if not (izy + P * (xi - u0) <= thr_min):
+                        acc |= np.uint64(1) << np.uint64(xi & 63)
+                bits[row + word] |= acc
             continue
         for xi in range(int(lo), int(hi) + 1):
             idx = base + xi
@@ -248,7 +226,7 @@ def _raster_triangle(
 @njit(cache=True)
 def _raster_pose(
     T, verts, faces, planes, cull, intr, width, height, znear,
-    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ, cam, scr,
+    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, cam, scr,
 ):  # fmt: skip
     """Rasterise the mesh (verts (V, 3) [m], faces (F, 3)) at pose ``T`` (4, 4) in the
     camera's optical frame, with ``intr`` = (fx, fy, cx, cy). With ``cull`` (a closed
@@ -296,14 +274,14 @@ def _raster_pose(
                 scr[i0, _U], scr[i0, _V], scr[i0, _IZ],
                 scr[i1, _U], scr[i1, _V], scr[i1, _IZ],
                 scr[i2, _U], scr[i2, _V], scr[i2, _IZ],
-                width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ,
+                width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
             )  # fmt: skip
             area += a
             inter += b
         elif n_ok > 0.0:
             a, b = _raster_clipped(
                 cam, i0, i1, i2, fx, fy, cx, cy, width, height, znear,
-                thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ,
+                thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
             )  # fmt: skip
             area += a
             inter += b
@@ -313,7 +291,7 @@ def _raster_pose(
 @njit(cache=True)
 def _raster_clipped(
     cam, i0, i1, i2, fx, fy, cx, cy, width, height, znear,
-    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ,
+    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
 ):  # fmt: skip
     """Rasterise triangle (i0, i1, i2) of camera-frame vertices ``cam`` (V, 3) after clipping
     it at z = znear (Sutherland-Hodgman against one plane; at most a quad, drawn as a fan)."""
@@ -343,7 +321,7 @@ def _raster_clipped(
     for k in range(1, m - 1):
         a, b = _raster_triangle(
             pu[0], pv[0], piz[0], pu[k], pv[k], piz[k], pu[k + 1], pv[k + 1], piz[k + 1],
-            width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, occ,
+            width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
         )  # fmt: skip
         area += a
         inter += b
@@ -366,14 +344,13 @@ def render_masks_kernel(
     zdummy = np.zeros(1, dtype=np.float32)
     odummy = np.zeros(width * height, dtype=np.uint8)
     bdummy = np.zeros(1, dtype=np.uint64)
-    occdummy = np.zeros((1, 4))
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
             _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_MASK, out[i], zdummy, odummy, bdummy, 0, occdummy, cam, scr,
+                thr, thr_min, use_thr, MODE_MASK, out[i], zdummy, odummy, bdummy, 0, cam, scr,
             )  # fmt: skip
 
 
@@ -387,37 +364,44 @@ def pack_rows(mask: np.ndarray) -> np.ndarray:
     return np.packbits(padded, axis=1, bitorder="little").view("<u8").astype(np.uint64).reshape(-1)
 
 
-def threshold_columns(thr: np.ndarray, height: int, width: int, thr_min: float) -> np.ndarray:
-    """Per row (h, 2 + 2 * nb) float64: the first and last column whose threshold in ``thr``
-    (h * w,) is above ``thr_min`` (first > last where there is none), the only pixels scoring
-    may test one by one, then the least and greatest threshold of each block of 16 columns
-    (``nb = ceil(w / 16)``; block ``b`` is columns ``16 b .. 16 b + 15``)."""
-    t = thr.reshape(height, width)
-    above = t > thr_min
-    any_above = above.any(axis=1)
-    first = np.where(any_above, above.argmax(axis=1), width)
-    last = np.where(any_above, width - 1 - above[:, ::-1].argmax(axis=1), -1)
-    size = 1 << _BLOCK_SHIFT
-    nb = -(-width // size)
-    padded = np.pad(t, ((0, 0), (0, nb * size - width)), mode="edge").reshape(height, nb, size)
-    bounds = np.stack([padded.min(axis=2), padded.max(axis=2)], axis=2).reshape(height, 2 * nb)
-    return np.column_stack([first, last, bounds]).astype(np.float64)
+@njit(cache=True, parallel=True)
+def score_masks_kernel(
+    poses, verts, faces, planes, cull, intr, width, height, znear, thr, thr_min, use_thr, nchunks, obs, area, inter
+):
+    """Rendered area and intersection with ``obs`` (h * w,) uint8 per pose, without keeping
+    the masks: (N,) int64 each."""
+    n = poses.shape[0]
+    nv = verts.shape[0]
+    zdummy = np.zeros(1, dtype=np.float32)
+    bdummy = np.zeros(1, dtype=np.uint64)
+    for c in prange(nchunks):
+        cam = np.empty((nv, 3))
+        scr = np.empty((nv, 4))
+        mask = np.empty(width * height, dtype=np.bool_)
+        for i in range(c * n // nchunks, (c + 1) * n // nchunks):
+            mask[:] = False
+            a, b = _raster_pose(
+                poses[i], verts, faces, planes, cull, intr, width, height, znear,
+                thr, thr_min, use_thr, MODE_MASK, mask, zdummy, obs, bdummy, 0, cam, scr,
+            )  # fmt: skip
+            area[i] = a
+            inter[i] = b
 
 
 @njit(cache=True, parallel=True)
-def score_masks_kernel(
-    poses, verts, faces, planes, cull, intr, width, height, znear, thr, thr_min, use_thr, occ, nchunks,
-    obs_bits, area, inter,
-):  # fmt: skip
-    """Rendered area and intersection with the observed mask ``obs_bits`` (``pack_rows``) per
-    pose, without keeping the masks: (N,) int64 each. ``occ`` is ``threshold_columns(thr)``
-    (unused without a threshold)."""
+def score_runs_kernel(
+    poses, verts, faces, planes, cull, intr, width, height, znear, thr_min, use_thr, nchunks, obs_bits, area, inter
+):
+    """``score_masks_kernel`` for a threshold ``thr_min`` the same over the window (or none),
+    by runs in a bit-packed mask: area and intersection with ``obs_bits`` (``pack_rows``) per
+    pose, (N,) int64 each."""
     n = poses.shape[0]
     nv = verts.shape[0]
     nw = (width + 63) // 64
     zdummy = np.zeros(1, dtype=np.float32)
     mdummy = np.zeros(1, dtype=np.bool_)
     odummy = np.zeros(1, dtype=np.uint8)
+    tdummy = np.zeros(1)
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
@@ -425,7 +409,7 @@ def score_masks_kernel(
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
             _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_BITS, mdummy, zdummy, odummy, bits, nw, occ, cam, scr,
+                tdummy, thr_min, use_thr, MODE_BITS, mdummy, zdummy, odummy, bits, nw, cam, scr,
             )  # fmt: skip
             a = 0
             b = 0
@@ -448,12 +432,12 @@ def render_invdepth_kernel(
     mdummy = np.zeros(1, dtype=np.bool_)
     odummy = np.zeros(1, dtype=np.uint8)
     bdummy = np.zeros(1, dtype=np.uint64)
-    occdummy = np.zeros((1, 4))
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
             _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_ZBUF, mdummy, out[i], odummy, bdummy, 0, occdummy, cam, scr,
+                thr, thr_min, use_thr, MODE_ZBUF, mdummy, out[i], odummy, bdummy, 0, cam, scr,
             )  # fmt: skip
+

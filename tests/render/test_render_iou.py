@@ -65,10 +65,18 @@ def _two_boxes():
     return trimesh.util.concatenate([a, b])
 
 
+@pytest.mark.parametrize("kernel", ["runs", "bytes"])
 @pytest.mark.parametrize("case", ["plain", "slanted occluder", "tactile", "tactile occluded", "near plane"])
-def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case):
-    # Scoring sets whole runs of a row at once and bisects for where a threshold cuts a row;
-    # its IoU must equal the IoU of the masks rendered pixel by pixel, in every mode.
+def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case, kernel, monkeypatch):
+    # Scoring by runs (whole words of a row at once, bisection where a constant threshold cuts
+    # a row) or by a byte mask must give the IoU of the masks rendered pixel by pixel, in every
+    # mode; runs serve only thresholds that are one value over the window.
+    from mvtop_cli.render import raster
+
+    runs = []
+    real = raster.score_runs_kernel
+    monkeypatch.setattr(raster, "score_runs_kernel", lambda *a: runs.append(1) or real(*a))
+    monkeypatch.setattr(fast, "RUNS_MIN_PIXELS_PER_FACE", 0 if kernel == "runs" else 10**9)
     rng = np.random.default_rng(11)
     fast.add_mesh("two_boxes", *(lambda m: (m.vertices, m.faces))(_two_boxes()))
     kw = {}
@@ -99,3 +107,4 @@ def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case):
         plain = fast.render_masks("two_boxes", T, camera, roi, **{k: v for k, v in kw.items() if k != "occluders"})
         assert (plain & ~masks).any() and masks.any()  # the wall hides part of the object, not all
     np.testing.assert_array_equal(fused, iou_scores(masks, observed, observed_outside=3.0))
+    assert bool(runs) == (kernel == "runs" and "occlu" not in case)
