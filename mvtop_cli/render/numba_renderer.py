@@ -158,13 +158,14 @@ class NumbaMaskRenderer(RendererBase):
         args = (T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m)
         # Runs pay where the observed part covers many pixels per front face (about half the
         # faces of a closed mesh face the camera) and the threshold is the same everywhere.
-        if constant and obs.sum() >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
+        observed_area = float(obs.sum())
+        if constant and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
             raster.score_runs_kernel(*args, t_min, use_thr, raster.chunk_count(len(T)), raster.pack_rows(obs),
                                      area, inter)
         else:
             raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)),
                                       np.ascontiguousarray(obs).reshape(-1).view(np.uint8), area, inter)
-        return iou_from_counts(area, inter, float(obs.sum()) + observed_outside, empty_score)
+        return iou_from_counts(area, inter, observed_area + observed_outside, empty_score)
 
     def render_depth(
         self,
