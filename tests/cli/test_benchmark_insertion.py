@@ -74,3 +74,28 @@ def test_benchmark_insertion_stops_on_an_unreachable_cluster_before_its_folder(t
     assert proc.returncode == 2
     assert proc.stderr.startswith("mvtop: error: --ray 127.0.0.1:9: cannot reach a Ray cluster there (")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("method", ["M-VTOP", "M-VOP"])
+def test_readme_insertion_rows_are_the_committed_results(method):
+    # The README's Table I rows over 100 grasps per object are the committed results, recounted
+    # here (docs and data cannot drift apart).
+    from pathlib import Path
+
+    import numpy as np
+
+    from mvtop_cli.benchmarks.insertion import aggregate, read_results
+
+    root = Path(__file__).resolve().parents[2]
+    records = read_results(root / "benchmarks" / "insertion" / f"{method.lower()}-seeds-1000-1099" / "results.jsonl.gz")
+    objects = ["cube", "shaft_peg", "plug", "conn1", "conn2"]
+    per = {o: aggregate([r for r in records if r["benchmark"]["object"] == o]) for o in objects}
+    assert all(per[o]["runs"] == 100 for o in objects)
+    rates = [100 * per[o]["success_rate"] for o in objects]
+    first = [100 * per[o]["first_attempt_rate"] for o in objects]
+    readme = (root / "README.md").read_text().splitlines()
+    row = f"| {method} | " + " | ".join(f"{v:.0f}" for v in rates) + f" | **{np.mean(rates):.0f}** |"
+    assert row in readme, row
+    row = f"| {method} success at the first attempt, % | " + " | ".join(f"{v:.0f}" for v in first) + \
+        f" | {np.mean(first):.0f} |"
+    assert row in readme, row
