@@ -30,8 +30,8 @@ class NumbaMaskRenderer(RendererBase):
     znear_m : near clipping distance [m]
     """
 
-    # Threshold maps kept for scoring, per occluder poses, window and gel plane: a frame's
-    # likelihood calls all score against the same few (one per sensor).
+    # Threshold maps kept per occluder poses, window and gel plane: a frame's likelihood calls
+    # all render against the same few (one per sensor).
     _THRESHOLD_CACHE_SIZE = 32
     # ``score_masks`` sets runs (``raster.score_runs_kernel``) when the observed mask holds at
     # least this many pixels per front face; below it the byte mask is faster (raster's notes).
@@ -39,12 +39,12 @@ class NumbaMaskRenderer(RendererBase):
 
     def __init__(self, znear_m: float = DEFAULT_ZNEAR_M) -> None:
         super().__init__(znear_m)
-        self._scoring_thresholds: dict[tuple, tuple[np.ndarray, float, bool, bool]] = {}
+        self._thresholds: dict[tuple, np.ndarray | None] = {}
 
     def add_mesh(self, mesh_id: str, vertices: np.ndarray, faces: np.ndarray) -> None:
         """Register (or replace) mesh ``mesh_id``; threshold maps rendered before are dropped."""
         super().add_mesh(mesh_id, vertices, faces)
-        self._scoring_thresholds.clear()
+        self._thresholds.clear()
 
     def _invdepth(self, mesh: RenderMesh, T: np.ndarray, intr: np.ndarray, w: int, h: int, thr: np.ndarray | None):
         """Largest inverse depth (N, h * w) float32 [1/m] of ``mesh`` at poses ``T``; fragments
@@ -66,42 +66,25 @@ class NumbaMaskRenderer(RendererBase):
         h: int,
         plane_m: float | None,
     ) -> np.ndarray | None:
-        """Per-pixel inverse depth (h * w,) float64 a fragment must exceed, or None for none."""
-        occ = self._occluders(occluders)
-        if not occ and plane_m is None:
-            return None
-        thr = np.zeros(w * h, dtype=np.float64)
-        for mesh, T in occ:
-            np.maximum(thr, self._invdepth(mesh, T[None], intr, w, h, None)[0], out=thr)
-        if plane_m is not None:
-            np.maximum(thr, 1.0 / plane_m, out=thr)
-        return thr
-
-    def _scoring_threshold(
-        self,
-        occluders: Sequence[Occluder] | None,
-        intr: np.ndarray,
-        w: int,
-        h: int,
-        plane_m: float | None,
-    ) -> tuple[np.ndarray, float, bool, bool]:
-        """The scoring kernels' threshold arguments: the map (``_threshold``, or a dummy), its
-        least value, whether there is one, and whether it is one value over the window (the
-        runs kernel's condition); cached per occluder poses, window and plane."""
+        """Per-pixel inverse depth (h * w,) float64 a fragment must exceed (read-only), or None
+        for none; kept per occluder poses, window and plane."""
         key = (tuple((m, np.asarray(T, dtype=np.float64).tobytes()) for m, T in occluders or ()),
                intr.tobytes(), w, h, plane_m)
-        hit = self._scoring_thresholds.get(key)
-        if hit is not None:
-            return hit
-        thr = self._threshold(occluders, intr, w, h, plane_m)
-        if thr is None:
-            out = (np.zeros(1), 0.0, False, True)
-        else:
-            out = (thr, float(thr.min()), True, bool(thr.min() == thr.max()))
-        if len(self._scoring_thresholds) >= self._THRESHOLD_CACHE_SIZE:
-            self._scoring_thresholds.clear()
-        self._scoring_thresholds[key] = out
-        return out
+        if key in self._thresholds:
+            return self._thresholds[key]
+        occ = self._occluders(occluders)
+        thr = None
+        if occ or plane_m is not None:
+            thr = np.zeros(w * h, dtype=np.float64)
+            for mesh, T in occ:
+                np.maximum(thr, self._invdepth(mesh, T[None], intr, w, h, None)[0], out=thr)
+            if plane_m is not None:
+                np.maximum(thr, 1.0 / plane_m, out=thr)
+            thr.flags.writeable = False
+        if len(self._thresholds) >= self._THRESHOLD_CACHE_SIZE:
+            self._thresholds.clear()
+        self._thresholds[key] = thr
+        return thr
 
     def render_masks(
         self,
@@ -152,14 +135,17 @@ class NumbaMaskRenderer(RendererBase):
         obs = np.asarray(observed, dtype=bool)
         if obs.shape != (h, w):
             raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
-        t, t_min, use_thr, constant = self._scoring_threshold(occluders, intr, w, h, plane)
+        thr = self._threshold(occluders, intr, w, h, plane)
+        use_thr = thr is not None
+        t = thr if use_thr else np.zeros(1)
+        t_min = float(t.min())
         area = np.empty(len(T), dtype=np.int64)
         inter = np.empty(len(T), dtype=np.int64)
         args = (T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m)
         # Runs pay where the observed part covers many pixels per front face (about half the
         # faces of a closed mesh face the camera) and the threshold is the same everywhere.
         observed_area = float(obs.sum())
-        if constant and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
+        if t_min == t.max() and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
             raster.score_runs_kernel(*args, t_min, use_thr, raster.chunk_count(len(T)), raster.pack_rows(obs),
                                      area, inter)
         else:
