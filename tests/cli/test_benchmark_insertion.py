@@ -76,7 +76,7 @@ def test_benchmark_insertion_stops_on_an_unreachable_cluster_before_its_folder(t
     assert not out.exists()
 
 
-@pytest.mark.parametrize("method", ["M-VTOP", "M-VOP"])
+@pytest.mark.parametrize("method", ["M-VTOP", "M-VOP", "M-TOP"])
 def test_readme_insertion_rows_are_the_committed_results(method):
     # The README's Table I rows over 100 grasps per object are the committed results, recounted
     # here (docs and data cannot drift apart).
