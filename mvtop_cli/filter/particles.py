@@ -19,8 +19,9 @@ inside it (the estimator's is ``estimator.symmetry.SymmetryFold``)."""
 def log_sum_exp(a: np.ndarray) -> float:
     """``log(sum(exp(a)))`` of a 1-D float array, stable: ``scipy.special.logsumexp``'s own
     steps for real 1-D input (the maxima summed apart, ``log1p`` of the rest; the direct sum
-    where that is not finite), so it gives the same bits, at a tenth of its overhead on the
-    few-hundred-element arrays the filter sums thousands of times a run. ``-inf`` when empty."""
+    where that is not finite), so it gives the same bits in about a third of its time on the
+    few-hundred-element arrays the filter sums thousands of times a run (500 elements: 12 us
+    against 38 us on this 2-core machine). ``-inf`` when empty."""
     a = np.asarray(a, dtype=np.float64).reshape(-1)
     if a.size == 0:
         return -np.inf

@@ -440,4 +440,3 @@ def render_invdepth_kernel(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
                 thr, thr_min, use_thr, MODE_ZBUF, mdummy, out[i], odummy, bdummy, 0, cam, scr,
             )  # fmt: skip
-

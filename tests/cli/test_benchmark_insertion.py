@@ -6,8 +6,12 @@ import gzip
 import json
 import subprocess
 import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
+
+from mvtop_cli.benchmarks.insertion import aggregate, read_results
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
@@ -80,12 +84,6 @@ def test_benchmark_insertion_stops_on_an_unreachable_cluster_before_its_folder(t
 def test_readme_insertion_rows_are_the_committed_results(method):
     # The README's Table I rows over 100 grasps per object are the committed results, recounted
     # here (docs and data cannot drift apart).
-    from pathlib import Path
-
-    import numpy as np
-
-    from mvtop_cli.benchmarks.insertion import aggregate, read_results
-
     root = Path(__file__).resolve().parents[2]
     records = read_results(root / "benchmarks" / "insertion" / f"{method.lower()}-seeds-1000-1099" / "results.jsonl.gz")
     objects = ["cube", "shaft_peg", "plug", "conn1", "conn2"]

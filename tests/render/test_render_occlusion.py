@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from mvtop_cli.geometry import se3
-from mvtop_cli.render import roi_for_particles
+from mvtop_cli.render import NumbaMaskRenderer, roi_for_particles
 
 
 def _setup(scene, fast, n=8):
@@ -55,10 +56,6 @@ def test_occluders_combine_and_score(scene, fast):
 def test_scores_follow_a_replaced_occluder_mesh(scene):
     # Scoring keeps each occluder's threshold map per pose and window; registering the mesh
     # anew must drop it, or the old occluder would keep hiding the object.
-    import trimesh
-
-    from mvtop_cli.render import NumbaMaskRenderer
-
     r = NumbaMaskRenderer()
     r.add_mesh("cube", scene.cube().vertices, scene.cube().faces)
     big = trimesh.creation.box((0.2, 0.2, 0.002))
