@@ -310,6 +310,32 @@ class SearchConfig:
 
 
 @dataclass(frozen=True)
+class EdgesConfig:
+    """The camera contour term (beyond the paper; ``estimator/edges.py``): the image gradient
+    across each camera's projected object contour, added to eq. 6's log-likelihood."""
+
+    gain: float = field(default=0.0, metadata=_rng(
+        0.0, 1000.0, doc="nats per 100 px of contour per unit of gradient across it above the background level "
+                         "(CIE Lab units per image pixel, summed over L*, a*, b*), per camera; 0: no contour term"))
+    background_factor: float = field(default=2.0, metadata=_rng(
+        0.0, 100.0, doc="a contour sample is evidence for the pose above this many times the window's median "
+                        "gradient, against it below"))
+    blur_sigma_px: float = field(default=0.8, metadata=_rng(
+        0.0, 20.0, doc="Gaussian smoothing of the image before its derivatives [image pixels]"))
+    spacing_px: float = field(default=1.0, metadata=_rng(
+        0.05, 100.0, doc="distance between samples along the projected contour [ROI pixels]"))
+    crease_deg: float = field(default=30.0, metadata=_rng(
+        0.0, 180.0, doc="mesh edges whose faces meet at more than this angle are read too where both faces "
+                        "face the camera (a visible edge inside the outline) [deg]"))
+    occluder_margin_px: float = field(default=2.0, metadata=_rng(
+        0.0, 100.0, doc="contour samples this close across the contour to an outline of the occluders "
+                        "(fingers, receptacle, table) are not read: they would read that outline [ROI pixels]"))
+    occluder_depth_step: float = field(default=0.01, metadata=_rng(
+        0.0, 1.0, lo_open=True, doc="an occluders' outline is where their inverse depth changes by more than this "
+                                    "fraction between neighbouring pixels"))
+
+
+@dataclass(frozen=True)
 class ConsistencyConfig:
     """The sensor consistency watch (``filter.health.SensorConsistency``): a sensor whose
     mask disagrees with the estimate the others agree on for ``frames`` frames in a row has
@@ -378,6 +404,7 @@ class Config:
     filter: FilterConfig = FilterConfig()
     search: SearchConfig = SearchConfig()
     consistency: ConsistencyConfig = ConsistencyConfig()
+    edges: EdgesConfig = EdgesConfig()
     contact: ContactConfig = ContactConfig()
     output: OutputConfig = OutputConfig()
     modalities: tuple[Literal["vision", "tactile", "contact"], ...] = MODALITIES

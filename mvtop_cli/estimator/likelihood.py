@@ -15,6 +15,10 @@ the pose and the fixed environment (eq. 8) is added (``contact.likelihood``), an
 beyond the paper, ``log sigma((phi + tau_p) / sigma_p)``: a pose sunk into the environment is
 as impossible as one far from it (``contact.penetration_*``).
 
+Contour. With ``edges.gain`` > 0, each camera's evidence that the object's projected contour
+at the pose runs along the image's edges, times the gain, is added (beyond the paper:
+``estimator/edges.py``); it reads the image alone, at a fraction of a pixel.
+
 Missing sensors. A sensor whose IoU column is NaN for every particle is absent from
 this frame (no image, or no usable observed mask). Its importance weight is dropped and
 the weights of the sensors present are rescaled to sum to one, as eq. 2 requires
@@ -265,12 +269,28 @@ class Likelihood:
         iou_t, iou_v = self.ious(T_ee_object[None])
         return {n: float(v) for n, v in zip(self.observation.sensors, np.concatenate([iou_t[0], iou_v[0]]))}
 
+    def contour_evidence(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Per camera with image derivatives (``observation.gradients``), the contour evidence
+        (N, n_cameras) at each pose (N, 4, 4): the sum over the visible contour samples of the
+        gradient across the contour minus the background level, per 100 px of contour
+        (``estimator/edges.py``) [CIE Lab units per image pixel]."""
+        obs, frame, renderer, e = self.observation, self.frame, self.scene.renderer, self.cfg.edges
+        out = np.empty((len(T_ee_object), len(obs.gradients)))
+        for j, (n, edge) in enumerate(obs.gradients.items()):
+            total, count = renderer.contour_gradient(
+                OBJECT_ID, frame.T_sensor_object(n, T_ee_object), frame.cameras[n].camera, obs.rois[n], edge.gx,
+                edge.gy, obs.occluders[n], e.spacing_px, e.occluder_margin_px, e.occluder_depth_step, e.crease_deg)
+            out[:, j] = (total - e.background_factor * edge.background * count) * e.spacing_px / 100.0
+        return out
+
     def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
         """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
         t0 = time.perf_counter()
         iou_t, iou_v = self.ious(T_ee_object)
         score = visuo_tactile_score(iou_t, iou_v, self.gamma if len(self.gamma) else None,
                                     self.nu if len(self.nu) else None, renormalise=False) / self.cfg.filter.temperature
+        if self.observation.gradients:
+            score = score + self.cfg.edges.gain * self.contour_evidence(T_ee_object).sum(axis=1)
         if self.contact:
             phi = self.scene.phi(self.frame.T_world_ee @ T_ee_object)
             c = self.cfg.contact

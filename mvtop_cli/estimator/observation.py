@@ -16,7 +16,7 @@ as ``options.reference_image`` or taken as the first tactile image of the log).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from ..masking.belief import belief_probability, grabcut_from_belief
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
+from .edges import EdgeImage
 from .scene import OBJECT_ID, SceneModel
 from .symmetry import SymmetryFold
 
@@ -127,7 +128,9 @@ class Observer:
 class Observation:
     """One frame's evidence, per sensor name: the ROI window (fixed for the frame), the
     occluders ``(mesh_id, T_sensor_mesh)`` of each camera, the observed mask cropped to the
-    ROI (``masks``) and the observed mask area outside the ROI in ROI pixels (``outside``).
+    ROI (``masks``) and the observed mask area outside the ROI in ROI pixels (``outside``),
+    and with the contour term (``edges.gain``) each camera image's derivatives in its ROI
+    (``gradients``: ``edges.EdgeImage``; not for a camera of ``weight`` 0).
     ``tactile`` and ``cameras`` name the sensors with an observed mask, in the frame's
     order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt``,
     ``recorded`` from the log's mask topics, or ``none`` without cameras)."""
@@ -139,6 +142,7 @@ class Observation:
     tactile: list[str]
     cameras: list[str]
     mask_mode: str
+    gradients: dict[str, EdgeImage] = field(default_factory=dict)
 
     @property
     def sensors(self) -> list[str]:
@@ -208,8 +212,14 @@ class ObservationModel:
             for name, m in cam_masks.items():
                 if m is not None:
                     masks[name], outside[name] = m, 0.0
+        gradients = {}
+        if self.cfg.edges.gain > 0:
+            off = {c.name for c in self.cfg.sensors.cameras if c.weight == 0}  # a camera switched off
+            for name, img in frame.cameras.items():
+                if name not in off:
+                    gradients[name] = EdgeImage.of(img.image, rois[name], self.cfg.edges.blur_sigma_px)
         return Observation(rois, occluders, masks, outside, [n for n in frame.tactile if n in masks],
-                           [n for n in frame.cameras if n in masks], mask_mode)
+                           [n for n in frame.cameras if n in masks], mask_mode, gradients)
 
     def camera_masks(self, frame: Frame, cameras: dict[str, SensorImage], rois: dict[str, Roi], occluders: dict,
                      candidates: np.ndarray, weights: np.ndarray, seed: int) -> dict[str, np.ndarray]:
@@ -228,7 +238,7 @@ class ObservationModel:
                 OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
             props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
-            belief = grabcut_from_belief(roi_image(img.image, roi), belief_probability(rendered[name], weights),
+            belief = grabcut_from_belief(roi.image(img.image), belief_probability(rendered[name], weights),
                                          seed=seed)
             proposals[name] = ([belief] if belief is not None else []) + props
         return dict(select_masks(proposals, rendered, {n: 1.0 for n in cameras}).masks)
@@ -244,21 +254,3 @@ class ObservationModel:
                                                       img.camera, full, occluders[name])[0]
             out[name] = rois[name].crop(self.observer.camera_prompt(img, prompt)) if prompt.any() else None
         return out
-
-
-def roi_image(image: np.ndarray, roi: Roi) -> np.ndarray:
-    """The ROI window of an (H, W, 3) uint8 image at ROI resolution (area-averaged, zero
-    outside the image)."""
-    import cv2
-
-    H, W = image.shape[:2]
-    win = np.zeros((roi.height, roi.width, 3), np.uint8)
-    ys, xs = max(roi.y0, 0), max(roi.x0, 0)
-    ye, xe = min(roi.y0 + roi.height, H), min(roi.x0 + roi.width, W)
-    if ye > ys and xe > xs:
-        win[ys - roi.y0 : ye - roi.y0, xs - roi.x0 : xe - roi.x0] = image[ys:ye, xs:xe]
-    rows, cols = roi.shape
-    if (rows, cols) == win.shape[:2]:
-        return win
-    interp = cv2.INTER_AREA if roi.scale < 1 else cv2.INTER_NEAREST
-    return cv2.resize(win, (cols, rows), interpolation=interp)

@@ -9,6 +9,7 @@ import numpy as np
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render import raster
 from mvtop_cli.render.base import DEFAULT_ZNEAR_M, Occluder, RendererBase, RenderMode
+from mvtop_cli.render.contour import ContourTopology, contour_gradient
 from mvtop_cli.render.iou import iou_from_counts
 from mvtop_cli.render.mesh import RenderMesh
 from mvtop_cli.render.roi import Roi
@@ -40,11 +41,14 @@ class NumbaMaskRenderer(RendererBase):
     def __init__(self, znear_m: float = DEFAULT_ZNEAR_M) -> None:
         super().__init__(znear_m)
         self._thresholds: dict[tuple, np.ndarray | None] = {}
+        self._topologies: dict[tuple[str, float], ContourTopology] = {}
 
     def add_mesh(self, mesh_id: str, vertices: np.ndarray, faces: np.ndarray) -> None:
-        """Register (or replace) mesh ``mesh_id``; threshold maps rendered before are dropped."""
+        """Register (or replace) mesh ``mesh_id``; threshold maps rendered before, and the mesh's
+        contour topologies, are dropped."""
         super().add_mesh(mesh_id, vertices, faces)
         self._thresholds.clear()
+        self._topologies = {k: v for k, v in self._topologies.items() if k[0] != mesh_id}
 
     def _invdepth(self, mesh: RenderMesh, T: np.ndarray, intr: np.ndarray, w: int, h: int, thr: np.ndarray | None):
         """Largest inverse depth (N, h * w) float32 [1/m] of ``mesh`` at poses ``T``; fragments
@@ -152,6 +156,35 @@ class NumbaMaskRenderer(RendererBase):
             raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)),
                                       np.ascontiguousarray(obs).reshape(-1).view(np.uint8), area, inter)
         return iou_from_counts(area, inter, observed_area + observed_outside, empty_score)
+
+    def contour_gradient(
+        self,
+        mesh_id: str,
+        T_sensor_object: np.ndarray,
+        camera: PinholeCamera,
+        roi: Roi,
+        gx: np.ndarray,
+        gy: np.ndarray,
+        occluders: Sequence[Occluder] | None = None,
+        spacing_px: float = 1.0,
+        margin_px: float = 2.0,
+        depth_step: float = 0.01,
+        crease_deg: float = 30.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The image gradient across the visible projected contour of mesh ``mesh_id``
+        at poses ``T_sensor_object`` (N, 4, 4), the contour behind ``occluders`` or within
+        ``margin_px`` of an outline of theirs (``depth_step``) left out; ``gx``, ``gy`` (C, h, w)
+        the image derivatives in the ROI. Returns (summed gradient (N,), visible samples (N,)):
+        ``render.contour.contour_gradient``."""
+        T = self._poses(T_sensor_object)
+        mesh = self.mesh(mesh_id)
+        key = (mesh_id, crease_deg)
+        if key not in self._topologies:
+            self._topologies[key] = ContourTopology.from_mesh(mesh, crease_deg)
+        intr, w, h = _intrinsics(camera, roi)
+        thr = self._threshold(occluders, intr, w, h, None)
+        return contour_gradient(mesh, self._topologies[key], T, camera, roi, gx, gy, thr, spacing_px,
+                                margin_px, depth_step, self.znear_m)
 
     def render_depth(
         self,

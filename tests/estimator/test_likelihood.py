@@ -99,3 +99,22 @@ def test_a_sensor_of_weight_zero_changes_nothing():
     clean = _frame_likelihood("conn2", cfg)[0](poses)
     flipped = _frame_likelihood("conn2", cfg, flip="front")[0](poses)
     assert np.max(np.abs(clean - flipped)) > 1.0
+
+
+def test_the_likelihood_adds_gain_times_the_contour_evidence():
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    off = replace(cfg, edges=replace(cfg.edges, gain=0.0))
+    on = replace(cfg, edges=replace(cfg.edges, gain=2.5))
+    without, T_gt, _ = _frame_likelihood("cube", off)
+    with_edges, _, _ = _frame_likelihood("cube", on)
+    assert not without.observation.gradients and set(with_edges.observation.gradients) == {"front", "side"}
+    poses = init_from_prior(T_gt, 1e-3, np.radians(1.0), 16, np.random.default_rng(3)).poses
+    g = with_edges.contour_evidence(poses)
+    assert g.shape == (16, 2) and np.ptp(g, axis=0).min() > 1.0
+    # the image's outlines are the truth's: it has more evidence than any pose 1 mm / 1 deg around it
+    assert with_edges.contour_evidence(T_gt[None])[0].sum() > g.sum(axis=1).max()
+    np.testing.assert_allclose(with_edges(poses), without(poses) + 2.5 * g.sum(axis=1), rtol=0, atol=1e-9)
+    # a camera switched off (weight 0) gives no contour evidence either
+    front_off = replace(on, sensors=replace(on.sensors, cameras=(replace(on.sensors.cameras[0], weight=0.0),
+                                                                 *on.sensors.cameras[1:])))
+    assert set(_frame_likelihood("cube", front_off)[0].observation.gradients) == {"side"}
