@@ -58,7 +58,7 @@ def image_gradients(image: np.ndarray, blur_sigma_px: float) -> tuple[np.ndarray
     gy = np.empty_like(gx)
     for c in range(3):
         ch = cv2.GaussianBlur(lab[..., c], (0, 0), blur_sigma_px) if blur_sigma_px > 0 else lab[..., c]
-        # a 3x3 Sobel is 8 times the central difference of the smoothed image
+        # a 3x3 Sobel over 8: the central difference [units/px] after a [1, 2, 1] / 4 smoothing across it
         gx[c] = cv2.Sobel(ch, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
         gy[c] = cv2.Sobel(ch, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
     return gx, gy
