@@ -40,8 +40,18 @@ class EdgeImage:
 
     @staticmethod
     def of(image: np.ndarray, roi: Roi, blur_sigma_px: float) -> EdgeImage:
-        """The derivatives of an (H, W, 3) uint8 RGB ``image`` in ``roi``."""
-        gx, gy = roi_gradients(*image_gradients(image, blur_sigma_px), roi)
+        """The derivatives of an (H, W, 3) uint8 RGB ``image`` in ``roi``: those of the whole
+        image, computed on the ROI's window and a border as wide as the filters reach (the
+        window is a small part of the frame)."""
+        H, W = image.shape[:2]
+        border = int(np.ceil(4.0 * blur_sigma_px)) + 2  # OpenCV's float Gaussian: radius 4 sigma; Sobel: 1
+        x0, y0 = max(roi.x0 - border, 0), max(roi.y0 - border, 0)
+        x1, y1 = min(roi.x0 + roi.width + border, W), min(roi.y0 + roi.height + border, H)
+        if x1 <= x0 or y1 <= y0:  # the window lies outside the image
+            gx = gy = np.zeros((3, *roi.shape), np.float32)
+        else:
+            local = Roi(roi.x0 - x0, roi.y0 - y0, roi.width, roi.height, roi.scale)
+            gx, gy = roi_gradients(*image_gradients(image[y0:y1, x0:x1], blur_sigma_px), local)
         typical = 0.5 * (np.abs(gx).sum(axis=0) + np.abs(gy).sum(axis=0))
         return EdgeImage(gx, gy, float(np.median(typical)))
 

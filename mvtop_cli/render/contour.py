@@ -182,9 +182,9 @@ def _contour_pose(T, verts, planes, edges, edge_faces, opposite, crease, intr, w
                 # hidden, or within ``margin`` across the contour of an occluder's outline, in
                 # front of the part or behind it (the sample would read that outline's edge)
                 iz = iza + t * (izb - iza)  # inverse depth is linear along the projected edge
-                if iz <= thr[int(y + 0.5) * width + int(x + 0.5)]:
-                    continue
                 here = thr[int(y + 0.5) * width + int(x + 0.5)]
+                if iz <= here:
+                    continue
                 near = False
                 for side in (-1.0, 1.0):
                     for r in range(1, int(margin) + 1):

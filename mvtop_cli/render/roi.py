@@ -79,27 +79,27 @@ class Roi:
         """The ROI window of an (H, W) or (H, W, C) image, any dtype, at ROI resolution:
         area-averaged when the ROI is downsampled, nearest neighbour when upsampled, zero
         outside the image."""
-        H, W = image.shape[:2]
-        win = np.zeros((self.height, self.width) + image.shape[2:], image.dtype)
-        ys, xs = max(self.y0, 0), max(self.x0, 0)
-        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
-        if ye > ys and xe > xs:
-            win[ys - self.y0 : ye - self.y0, xs - self.x0 : xe - self.x0] = image[ys:ye, xs:xe]
+        win = self._crop(image)
         rows, cols = self.shape
         if (rows, cols) == win.shape[:2]:
             return win
         interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_NEAREST
         return cv2.resize(win, (cols, rows), interpolation=interp)
 
-    def _window(self, image: np.ndarray) -> np.ndarray:
-        """The ROI window of ``image`` (H, W) as float32 coverage, zero-padded outside the image."""
+    def _crop(self, image: np.ndarray) -> np.ndarray:
+        """The ROI's window of ``image`` (H, W, ...) at image resolution, in its dtype,
+        zero-padded outside the image."""
         H, W = image.shape[:2]
-        win = np.zeros((self.height, self.width), dtype=np.float32)
+        win = np.zeros((self.height, self.width) + image.shape[2:], image.dtype)
         ys, xs = max(self.y0, 0), max(self.x0, 0)
         ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
         if ye > ys and xe > xs:
             win[ys - self.y0 : ye - self.y0, xs - self.x0 : xe - self.x0] = image[ys:ye, xs:xe]
         return win
+
+    def _window(self, image: np.ndarray) -> np.ndarray:
+        """The ROI window of ``image`` (H, W) as float32 coverage, zero-padded outside the image."""
+        return self._crop(np.asarray(image, dtype=np.float32))
 
     def coverage(self, mask: np.ndarray) -> np.ndarray:
         """Fraction (h, w) float32 in [0, 1] of each ROI pixel covered by the full-image

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from mvtop_cli.config import load_config
 from mvtop_cli.errors import ConfigError
-from mvtop_cli.estimator.edges import image_gradients, roi_gradients
+from mvtop_cli.estimator.edges import EdgeImage, image_gradients, roi_gradients
 from mvtop_cli.render.roi import Roi
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -45,6 +46,19 @@ def test_roi_window_is_the_crop_with_zeros_outside_the_image():
     half, _ = roi_gradients(gx, gy, Roi(0, 0, 60, 40, 0.5))
     assert half.shape == (3, 20, 30)
     np.testing.assert_allclose(half[0].sum(axis=1), 255.0 / 2, rtol=1e-3)  # area-averaged, per image pixel
+
+
+@pytest.mark.parametrize("roi", [Roi(200, 150, 128, 96), Roi(-30, 400, 128, 128), Roi(100, 50, 256, 256, 0.5)],
+                         ids=["inside", "past two edges", "downsampled"])
+def test_edge_image_is_the_whole_image_derivatives_cut_to_the_roi(roi):
+    rng = np.random.default_rng(4)
+    image = cv2.GaussianBlur(rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), (0, 0), 2.0)
+    edge = EdgeImage.of(image, roi, 0.8)
+    gx, gy = roi_gradients(*image_gradients(image, 0.8), roi)
+    np.testing.assert_allclose(edge.gx, gx, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(edge.gy, gy, rtol=0, atol=1e-4)
+    typical = 0.5 * (np.abs(gx).sum(axis=0) + np.abs(gy).sum(axis=0))
+    assert edge.background == pytest.approx(float(np.median(typical)), rel=1e-4)
 
 
 def test_a_grey_image_is_refused():
