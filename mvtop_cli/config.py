@@ -233,6 +233,10 @@ class MaskingConfig:
     prompt_when_converged: bool = False
     candidates: int = field(default=96, metadata=_rng(
         1, 100_000, doc="Algorithm 1: the best-weighted particles whose renders choose among the camera proposals"))
+    belief_band_px: int = field(default=0, metadata=_rng(
+        0, 64, doc="the belief's GrabCut proposal leaves at least this many ROI pixels on either side of the "
+                   "belief's outline to the image's colours and edges (0: only where the likely poses disagree, "
+                   "so a tight belief draws its own outline)"))
     converged_translation_m: float = field(default=0.0005, metadata=_rng(
         0.0, 0.1, doc="with prompt_when_converged: the belief's RMS translation spread below which it counts "
                       "as converged"))

@@ -239,7 +239,7 @@ class ObservationModel:
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
             props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
             belief = grabcut_from_belief(roi.image(img.image), belief_probability(rendered[name], weights),
-                                         seed=seed)
+                                         seed=seed, band_px=self.cfg.masking.belief_band_px)
             proposals[name] = ([belief] if belief is not None else []) + props
         return dict(select_masks(proposals, rendered, {n: 1.0 for n in cameras}).masks)
 
