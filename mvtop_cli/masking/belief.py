@@ -54,7 +54,7 @@ def grabcut_from_belief(
     trimap = np.full(prob.shape, cv2.GC_BGD, np.uint8)
     trimap[maybe.astype(bool)] = cv2.GC_PR_BGD
     trimap[prob >= _PROBABLE_FG] = cv2.GC_PR_FGD
-    if sure.sum() < 4:
+    if sure.sum() < 4:  # a silhouette too small or thin for the band: its likeliest pixels are the object
         sure = (prob >= prob.max() * 0.99).astype(np.uint8) if prob.max() > _PROBABLE_FG else sure
     trimap[sure.astype(bool)] = cv2.GC_FGD
     if not (trimap == cv2.GC_FGD).any() or not (trimap == cv2.GC_BGD).any():
