@@ -233,6 +233,12 @@ class MaskingConfig:
     prompt_when_converged: bool = False
     candidates: int = field(default=96, metadata=_rng(
         1, 100_000, doc="Algorithm 1: the best-weighted particles whose renders choose among the camera proposals"))
+    grabcut_prompt: Literal["belief", "prior"] = field(default="belief", metadata={
+        "doc": "what seeds the camera GrabCut proposal: the weighted belief (its likely poses' silhouettes), or the "
+               "grasp prior (prior_samples fixed poses in the end-effector frame, so no belief shapes the mask: "
+               "the belief only chooses among the proposals)"})
+    prior_samples: int = field(default=256, metadata=_rng(
+        8, 100_000, doc="with grabcut_prompt: prior, the grasp-prior poses whose silhouettes seed the GrabCut"))
     belief_band_px: int = field(default=0, metadata=_rng(
         0, 64, doc="the belief's GrabCut proposal leaves at least this many ROI pixels on either side of the "
                    "belief's outline to the image's colours and edges (0: only where the likely poses disagree, "
@@ -311,6 +317,10 @@ class SearchConfig:
     recheck_rounds: int = field(default=3, metadata=_rng(0, 1000))
     recheck_margin: float = field(default=10.0, metadata=_rng(
         0.0, 1e6, doc="nats by which a searched pose must beat the estimate and the best particle to redo the frame"))
+    dissent: bool = field(default=True, metadata={
+        "doc": "when a sensor disagrees with the estimate the others agree on (consistency.low_iou / consensus_iou), "
+               "search the grasp prior for the poses that sensor explains before its weight is scaled down, and redo "
+               "the frame from them when they beat the estimate by recheck_margin"})
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,10 @@
 chooses). For frames 5 and 22 of each sample log: the observed camera masks made from a belief
 at the truth and from three beliefs 3-5 mm / 3-5 deg off it (seeded), each against the true
 silhouette, counting truth outside the ROI as missed. Prints the IoUs per camera.
-Usage: .venv/bin/python scripts/camera_evidence_probe.py"""
+Usage: .venv/bin/python scripts/camera_evidence_probe.py [prior|belief]  (masking.grabcut_prompt;
+default: the config's)"""
+import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 rng = np.random.default_rng(7)
 for name in ("cube", "shaft_peg", "plug", "conn1", "conn2"):
     cfg = load_config(ROOT / "configs" / f"{name}.yaml")
+    if len(sys.argv) > 1:
+        cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt=sys.argv[1]))
     scene = SceneModel(cfg, build_contact=False)
     with McapLog(ROOT / "sample_logs" / f"{name}.mcap") as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
@@ -47,15 +52,7 @@ for name in ("cube", "shaft_peg", "plug", "conn1", "conn2"):
                     img = frame.cameras[cam]
                     truth = scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(cam, T_gt)[None], img.camera,
                                                         Roi.full(img.camera), obs.occluders[cam])[0]
-                    roi = obs.rois[cam]
-                    t_in, t_out = roi.crop(truth), roi.outside_area(truth)
-                    m = obs.masks.get(cam)
-                    if m is None:
-                        ious[cam] = 0.0
-                        continue
-                    inter = np.logical_and(m, t_in).sum()
-                    union = np.logical_or(m, t_in).sum() + t_out
-                    ious[cam] = inter / union if union else 1.0
+                    ious[cam] = obs.iou_with(cam, truth)
                 rows.append(ious)
             cams = list(rows[0])
             parts = [f"{c}: truth-start {rows[0][c]:.3f} offset-starts " + "/".join(f"{r[c]:.3f}" for r in rows[1:])

@@ -11,7 +11,9 @@ prior and is checked against a second, independent one (multi-start: one search 
 sometimes settles in a wrong mode, e.g. the cube 10 degrees off); every later frame checks
 with a short local search whether the belief sits at the likelihood's peak. When a searched
 pose beats both the estimate and the best particle by ``search.recheck_margin`` nats, the
-frame is redone from the searched poses and kept if its estimate fits better.
+frame is redone from the searched poses and kept if its estimate fits better. A sensor that
+disagrees with the estimate the others agree on adds the dissent search's poses to that check
+(``search.dissent``): the poses it explains, before the consistency watch scales it down.
 """
 
 from __future__ import annotations
@@ -285,6 +287,9 @@ class Estimator:
                                      np.radians(s.recheck_sigma_rotation_deg),
                                      **{**self.search, "rounds": s.recheck_rounds})
             self._search_s += time.perf_counter() - t0
+        for name in self._dissenting(likelihood, result.estimate):
+            d_poses, d_ll = self._dissent_search(name, likelihood, bounded)
+            poses, ll = np.concatenate([poses, d_poses]), np.concatenate([ll, d_ll])
         if not np.isfinite(ll).any():
             return result
         best = poses[int(np.argmax(ll))]
@@ -300,6 +305,39 @@ class Estimator:
             alt.diagnostics.setdefault("flags", []).append("re_searched")
             return alt
         return result
+
+    def _dissenting(self, likelihood: Likelihood, T_ee_object: np.ndarray) -> list[str]:
+        """The full-weight sensors that disagree with the estimate ``T_ee_object`` (4, 4) the
+        others agree on (``SensorConsistency.disagreeing``) and have not yet done so for
+        ``consistency.frames`` frames: the ones the watch would scale down next."""
+        if not self.cfg.search.dissent:
+            return []
+        ious = likelihood.sensor_ious(T_ee_object)
+        verdict = self.consistency.disagreeing(ious, likelihood.informative(ious))
+        return [n for n, med in verdict.items() if med is not None and self.consistency.weight_factor(n) == 1.0
+                and self.consistency.streak.get(n, 0) < self.consistency.frames]
+
+    def _dissent_search(self, name: str, likelihood: Likelihood,
+                        bounded: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The poses a dissenting sensor ``name`` explains, then the best of them for the whole
+        frame: a cross-entropy search of the grasp prior's region on that sensor's IoU alone,
+        continued for ``search.recheck_rounds`` rounds on the frame's log-likelihood. A sensor
+        outvoted by the others is either wrong (a flipped image: no pose explains it, and the
+        consistency watch scales it down) or right about a pose the others' evidence misled
+        the belief away from (a wrong mode whose basin a joint search misses when the sensor's
+        IoU rises only within a fraction of a millimetre of it). Poses (M, 4, 4) and their
+        log-likelihoods (M,)."""
+        t0 = time.perf_counter()
+        start = self.prior.sample(self.cfg.filter.num_particles * self.cfg.search.init_factor, self.rng).poses
+
+        def alone(T: np.ndarray) -> np.ndarray:
+            return np.where(self.prior.within(T), likelihood.sensor_iou(name, T), -np.inf)
+
+        poses, _ = cross_entropy_search(start, alone, self.rng, **self.search)
+        joint = {**self.search, "rounds": self.cfg.search.recheck_rounds}
+        out = cross_entropy_search(poses, bounded, self.rng, **joint)
+        self._search_s += time.perf_counter() - t0
+        return out
 
 
 def _no_moving_frames(frame: str, stamp_ns: int) -> np.ndarray:

@@ -231,21 +231,28 @@ class Likelihood:
     def ious(self, T_ee_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """IoU of every observed mask with the mask rendered at each pose (N, 4, 4):
         (N, N_T) tactile and (N, N_V) camera tables, in ``observation``'s sensor order."""
-        obs, frame, renderer = self.observation, self.frame, self.scene.renderer
+        obs = self.observation
         iou_t = np.empty((len(T_ee_object), len(obs.tactile)))
         iou_v = np.empty((len(T_ee_object), len(obs.cameras)))
         for j, n in enumerate(obs.tactile):
-            iou_t[:, j] = renderer.score_masks(
-                OBJECT_ID, frame.T_sensor_object(n, T_ee_object), frame.tactile[n].camera, obs.rois[n], obs.masks[n],
-                mode="tactile", gel_distance_m=self.gel_distance_m[n],
-                penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m, observed_outside=obs.outside[n],
-            )
+            iou_t[:, j] = self.sensor_iou(n, T_ee_object)
         for j, n in enumerate(obs.cameras):
-            iou_v[:, j] = renderer.score_masks(
-                OBJECT_ID, frame.T_sensor_object(n, T_ee_object), frame.cameras[n].camera, obs.rois[n], obs.masks[n],
-                obs.occluders[n], observed_outside=obs.outside[n],
-            )
+            iou_v[:, j] = self.sensor_iou(n, T_ee_object)
         return iou_t, iou_v
+
+    def sensor_iou(self, name: str, T_ee_object: np.ndarray) -> np.ndarray:
+        """IoU (N,) of observed sensor ``name``'s mask with the mask rendered at each pose
+        (N, 4, 4) in its ROI (tactile: the gel contact; cameras: the silhouette behind the
+        occluders); the area of the observed mask outside the ROI counts as missed."""
+        obs, frame, renderer = self.observation, self.frame, self.scene.renderer
+        T = frame.T_sensor_object(name, T_ee_object)
+        if name in obs.tactile:
+            return renderer.score_masks(
+                OBJECT_ID, T, frame.tactile[name].camera, obs.rois[name], obs.masks[name], mode="tactile",
+                gel_distance_m=self.gel_distance_m[name],
+                penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m, observed_outside=obs.outside[name])
+        return renderer.score_masks(OBJECT_ID, T, frame.cameras[name].camera, obs.rois[name], obs.masks[name],
+                                    obs.occluders[name], observed_outside=obs.outside[name])
 
     def rendered_masks(self, T_ee_object: np.ndarray) -> dict[str, np.ndarray]:
         """Per observed sensor, the mask (h, w) bool rendered at one pose (4, 4) in its ROI,

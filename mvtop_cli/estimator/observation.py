@@ -31,6 +31,7 @@ from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
 from .edges import EdgeImage
+from .prior import GraspPriorModel
 from .scene import OBJECT_ID, SceneModel
 from .symmetry import SymmetryFold
 
@@ -149,6 +150,18 @@ class Observation:
         """Every sensor with an observed mask: tactile first, then cameras (eq. 2's order)."""
         return self.tactile + self.cameras
 
+    def iou_with(self, name: str, full: np.ndarray) -> float:
+        """IoU of sensor ``name``'s observed mask with a full-image mask (H, W) bool, e.g. the
+        true silhouette, in ROI pixels; what either mask holds outside the ROI window counts as
+        not shared. 0 when the sensor has no observed mask in this frame."""
+        m = self.masks.get(name)
+        if m is None:
+            return 0.0
+        roi = self.rois[name]
+        inside = roi.crop(full)
+        union = np.logical_or(m, inside).sum() + roi.outside_area(full) + self.outside[name]
+        return float(np.logical_and(m, inside).sum() / union) if union else 1.0
+
 
 class ObservationModel:
     """Makes each frame's ``Observation`` for the estimator (and the camera masks for the
@@ -162,6 +175,11 @@ class ObservationModel:
         self.observer = Observer(cfg)
         self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
         self.fold = SymmetryFold.from_config(cfg, scene.symmetries)  # the belief's mean modulo symmetries
+        m = cfg.masking
+        # fixed grasp-prior poses (ee frame) that seed the camera GrabCut with grabcut_prompt: prior; their own
+        # generator, so the filter's draws are the same either way
+        self.prompt_poses = (GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(
+            m.prior_samples, np.random.default_rng(cfg.filter.seed)).poses if m.grabcut_prompt == "prior" else None)
 
     def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None) -> dict[str, Roi]:
         """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
@@ -202,7 +220,9 @@ class ObservationModel:
         elif frame.cameras:
             if converged:
                 mean = belief.mean() if self.fold is None else belief.spread(self.fold).mean
-                cam_masks, mask_mode = self.prompted_masks(frame, rois, occluders, mean), "prompt"
+                cam_masks = {n: None if m is None else (m, 0.0)
+                             for n, m in self.prompted_masks(frame, rois, occluders, mean).items()}
+                mask_mode = "prompt"
             else:
                 w = belief.weights()
                 idx = np.argsort(-w, kind="stable")[: self.cfg.masking.candidates]
@@ -211,7 +231,7 @@ class ObservationModel:
                 mask_mode = "proposals"
             for name, m in cam_masks.items():
                 if m is not None:
-                    masks[name], outside[name] = m, 0.0
+                    masks[name], outside[name] = m
         gradients = {}
         if self.cfg.edges.gain > 0:
             off = {c.name for c in self.cfg.sensors.cameras if c.weight == 0}  # a camera switched off
@@ -222,26 +242,41 @@ class ObservationModel:
                            [n for n in frame.cameras if n in masks], mask_mode, gradients)
 
     def camera_masks(self, frame: Frame, cameras: dict[str, SensorImage], rois: dict[str, Roi], occluders: dict,
-                     candidates: np.ndarray, weights: np.ndarray, seed: int) -> dict[str, np.ndarray]:
-        """Observed masks (ROI crops) of ``cameras`` by Algorithm 1-2: each camera's
-        proposals from the backend plus the GrabCut proposal seeded by the candidates' weighted
-        silhouettes, chosen jointly by how well the candidate poses ``T_ee_object`` (P, 4, 4)
-        with ``weights`` (P,) explain them. A camera whose proposals all fail is left out.
-        With masks recorded in the log (``topic``) these are the observed masks."""
+                     candidates: np.ndarray, weights: np.ndarray, seed: int) -> dict[str, tuple[np.ndarray, float]]:
+        """Observed masks of ``cameras`` by Algorithm 1-2, each as its ROI crop and its area
+        outside the ROI (ROI pixels): each camera's proposals from the backend plus one GrabCut
+        proposal, chosen jointly by how well the candidate poses ``T_ee_object`` (P, 4, 4) with
+        ``weights`` (P,) explain them. The GrabCut is seeded by the candidates' weighted
+        silhouettes (``masking.grabcut_prompt: belief``) or, with ``prior``, by the fixed
+        grasp-prior poses: then every proposal is made in the prior's window from the image
+        alone, and the candidates only choose among them. A camera whose proposals all fail is
+        left out. With masks recorded in the log (``topic``) these are the observed masks."""
         if self.observer.recorded:
             full = {name: self.observer.recorded_mask(img) for name, img in cameras.items()}
-            return {name: rois[name].crop(m) for name, m in full.items() if m is not None}
-        proposals, rendered = {}, {}
+            return {name: (rois[name].crop(m), rois[name].outside_area(m)) for name, m in full.items() if m is not None}
+        proposals, outside, rendered = {}, {}, {}
         for name, img in cameras.items():
             roi = rois[name]
             rendered[name] = self.scene.renderer.render_masks(
                 OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
-            box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
-            props = [roi.crop(p) for p in self.observer.camera_proposals(img, box)]
-            belief = grabcut_from_belief(roi.image(img.image), belief_probability(rendered[name], weights),
-                                         seed=seed, band_px=self.cfg.masking.belief_band_px)
-            proposals[name] = ([belief] if belief is not None else []) + props
-        return dict(select_masks(proposals, rendered, {n: 1.0 for n in cameras}).masks)
+            if self.prompt_poses is None:
+                prompt, prompt_roi, prompt_weights = rendered[name], roi, weights
+            else:
+                prompt_roi = self.rois(frame, self.prompt_poses, [name])[name]
+                prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prompt_poses),
+                                                          img.camera, prompt_roi, occluders[name])
+                prompt_weights = np.ones(len(prompt))
+            box = (prompt_roi.x0, prompt_roi.y0, prompt_roi.x0 + prompt_roi.width, prompt_roi.y0 + prompt_roi.height)
+            props = list(self.observer.camera_proposals(img, box))
+            grabcut = grabcut_from_belief(prompt_roi.image(img.image), belief_probability(prompt, prompt_weights),
+                                          seed=seed, band_px=self.cfg.masking.belief_band_px)
+            if grabcut is not None:
+                props.insert(0, prompt_roi.paste(grabcut, img.image.shape[:2], fill=False))
+            proposals[name] = [roi.crop(p) for p in props]
+            outside[name] = [roi.outside_area(p) for p in props]
+        chosen = select_masks(proposals, rendered, {n: 1.0 for n in cameras})
+        return {name: (m, outside[name][int(chosen.per_sensor_choice[name][chosen.best_pose_index])])
+                for name, m in chosen.masks.items() if m is not None}
 
     def prompted_masks(self, frame: Frame, rois: dict[str, Roi], occluders: dict,
                        T_ee_object: np.ndarray) -> dict[str, np.ndarray | None]:

@@ -176,14 +176,13 @@ class SensorConsistency:
         """The factor (1 or ``factor``) applied to sensor ``name``'s weight."""
         return self.factors.get(name, 1.0)
 
-    def observe(self, ious: dict[str, float], informative: dict[str, bool]) -> list[tuple[str, float, float]]:
-        """Take one frame's IoUs at the estimate (by sensor name) and which sensors were
-        informative; returns ``(name, its IoU, the others' median IoU)`` of the sensors
-        scaled down in this frame (usually none)."""
-        for name in ious:
-            self.streak.setdefault(name, 0)
-        newly = []
+    def disagreeing(self, ious: dict[str, float], informative: dict[str, bool]) -> dict[str, float | None]:
+        """One frame's verdict per informative sensor with at least ``min_others`` informative,
+        full-weight others: the others' median IoU when the sensor disagrees with the estimate
+        they agree on (its IoU below ``low_iou``, theirs at least ``consensus_iou``), else
+        None. Sensors without such others are left out (the frame says nothing of them)."""
         trusted = [n for n in ious if informative.get(n, False) and self.weight_factor(n) == 1.0]
+        out: dict[str, float | None] = {}
         for name in ious:
             if not informative.get(name, False):
                 continue
@@ -191,7 +190,18 @@ class SensorConsistency:
             if len(others) < self.min_others:
                 continue
             med = float(np.median(others))
-            if not (ious[name] < self.low_iou and med >= self.consensus_iou):
+            out[name] = med if ious[name] < self.low_iou and med >= self.consensus_iou else None
+        return out
+
+    def observe(self, ious: dict[str, float], informative: dict[str, bool]) -> list[tuple[str, float, float]]:
+        """Take one frame's IoUs at the estimate (by sensor name) and which sensors were
+        informative; returns ``(name, its IoU, the others' median IoU)`` of the sensors
+        scaled down in this frame (usually none)."""
+        for name in ious:
+            self.streak.setdefault(name, 0)
+        newly = []
+        for name, med in self.disagreeing(ious, informative).items():
+            if med is None:
                 self.streak[name] = 0
                 continue
             self.streak[name] += 1

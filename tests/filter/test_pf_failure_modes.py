@@ -201,6 +201,20 @@ def test_clean_sensors_and_lone_disagreements_are_never_flagged():
     assert watch.factors == {}
 
 
+def test_one_frames_verdict_names_the_dissenter_and_skips_what_cannot_be_judged():
+    watch = SensorConsistency()
+    ious = {"left": 0.2, "right": 1.0, "front": 0.96, "side": 0.92}
+    informative = {"left": True, "right": False, "front": True, "side": True}
+    # right is out of contact (not informative); left has two informative others
+    assert watch.disagreeing(ious, informative) == {"left": pytest.approx(0.94), "front": None, "side": None}
+    # with one informative other left there is no majority to judge by
+    assert watch.disagreeing(ious, {**informative, "side": False}) == {}
+    # a sensor already scaled down is judged but no longer judges
+    watch.factors["front"] = watch.factor
+    assert watch.disagreeing(ious, informative) == {"front": None}
+    assert watch.streak == {}  # a verdict alone counts nothing: observe() keeps the streaks
+
+
 def test_no_majority_no_down_weighting():
     # two informative sensors that disagree: nobody to side with
     watch = SensorConsistency()

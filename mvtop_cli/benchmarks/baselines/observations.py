@@ -139,6 +139,7 @@ class FramePoints:
                                               self.options.seed).get(name)
         if mask is None:  # no object seen: nothing can be carved safely
             return LabelledPoints.empty()
+        mask = mask[0]
         roi, occluders = rois[name], occluders[name]
         depth = np.full(roi.shape, np.inf)
         for mesh_id, T_sensor_mesh in occluders:
