@@ -329,10 +329,7 @@ class Estimator:
         log-likelihoods (M,)."""
         t0 = time.perf_counter()
         start = self.prior.sample(self.cfg.filter.num_particles * self.cfg.search.init_factor, self.rng).poses
-
-        def alone(T: np.ndarray) -> np.ndarray:
-            return np.where(self.prior.within(T), likelihood.sensor_iou(name, T), -np.inf)
-
+        alone = self.prior.bounded(lambda T: likelihood.sensor_iou(name, T))
         poses, _ = cross_entropy_search(start, alone, self.rng, **self.search)
         joint = {**self.search, "rounds": self.cfg.search.recheck_rounds}
         out = cross_entropy_search(poses, bounded, self.rng, **joint)
