@@ -383,6 +383,11 @@ class OutputConfig:
         0.0, 1000.0, lo_open=True,
         doc="with particles_and_evidence: the likelihood's widths are taken this many times wider in the "
             "reported covariance (calibrated on benchmark seeds 3000-3005, checked on 5000-5009: README)"))
+    suspect_unpinned_fraction: float | None = field(default=0.4, metadata=_rng(
+        0.0, 1.0, lo_open=True,
+        doc="a suspect_estimate warning when the evidence diagnostic leaves some pose axis open in at least this "
+            "fraction of the frames with evidence (filter/health.py; chosen on benchmark seeds 3000-3005 and "
+            "5000-5009, checked on 6000-6004: README); null: never"))
 
 
 @dataclass(frozen=True)

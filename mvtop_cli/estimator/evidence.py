@@ -56,6 +56,11 @@ class EvidenceReport:
         """The widest of the three rotation widths [deg]."""
         return float(np.degrees(np.max(self.likelihood_sigma[3:])))
 
+    @property
+    def pinned(self) -> bool:
+        """Whether the likelihood falls along all six axes at the probe's step (no ``inf`` width)."""
+        return bool(np.all(np.isfinite(self.likelihood_sigma)))
+
     def as_dict(self) -> dict:
         """JSON-ready form (``inf`` as null)."""
         num = finite_or_none

@@ -10,7 +10,7 @@ import numpy as np
 from ..config import Config, dump_config
 from ..estimator import FrameEstimate
 from ..estimator.evidence import finite_or_none
-from ..filter.health import count_warnings, sensor_report, warning_lines
+from ..filter.health import count_warnings, sensor_report, suspect_warning, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.mcap_writer import LogWriter
@@ -35,6 +35,10 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
             flags[fl] = flags.get(fl, 0) + 1
         warnings.extend(r.warnings)
         agreement.append((r.index, getattr(r, "sensor_iou", {})))
+    suspect = suspect_warning([r.evidence.pinned for r in results if r.evidence is not None],
+                              cfg.output.suspect_unpinned_fraction)
+    if suspect is not None:
+        warnings.append(suspect)
     out = {
         "log": str(log_path),
         "object": cfg.object.name,

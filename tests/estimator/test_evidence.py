@@ -40,6 +40,8 @@ def test_a_flat_axis_is_infinite_and_sets_the_widest_width():
     assert report.sigma_rotation_deg == pytest.approx(0.5, rel=1e-3)
     d = report.as_dict()
     assert d["likelihood_sigma_translation_m"][2] is None and d["min_iou"] == 0.7
+    assert not report.pinned
+    assert EvidenceReport({"front": 0.9}, 10.0, np.where(np.isinf(widths), 1e-3, widths)).pinned
 
 
 def test_an_estimate_in_a_trough_reads_as_unpinned():

@@ -12,6 +12,7 @@ from mvtop_cli.filter.health import (
     count_warnings,
     jump_warning,
     step_warnings,
+    suspect_warning,
     warning_lines,
 )
 from mvtop_cli.filter.pf import ParticleFilter
@@ -241,3 +242,19 @@ def test_warning_lines_give_one_line_per_kind_with_the_frame_count():
     lines = warning_lines(records, 30)
     assert lines == ["estimate_jump in 3 of 30 frames (3, 4, 9): worst: jump 4", "mesh_repaired: cube.obj repaired"]
     assert count_warnings(records) == {"estimate_jump": 3, "mesh_repaired": 1}
+
+
+def test_suspect_estimate_is_raised_when_enough_frames_leave_an_axis_open():
+    # 4 of 10 frames with an open axis: at the 0.4 threshold the run is suspect, below it not
+    pinned = [True] * 6 + [False] * 4
+    w = suspect_warning(pinned, 0.4)
+    assert w is not None and w["kind"] == "suspect_estimate" and w["frame"] is None
+    assert w["unpinned_frames"] == 4 and w["frames"] == 10 and w["unpinned_fraction"] == pytest.approx(0.4)
+    assert "4 of 10 frames (40 %" in w["detail"]
+    assert suspect_warning(pinned, 0.41) is None
+    assert suspect_warning([True] * 10, 0.1) is None
+    # switched off, or no frame with evidence: never raised
+    assert suspect_warning([False] * 10, None) is None
+    assert suspect_warning([], 0.4) is None
+    # the terminal line names it as a run warning
+    assert warning_lines([w], 10) == [f"suspect_estimate: {w['detail']}"]

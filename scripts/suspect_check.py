@@ -1,0 +1,78 @@
+"""How the run-level `suspect_estimate` warning (filter/health.py: suspect_warning) separates the
+runs of `mvtop benchmark accuracy` folders that end far off from those within the clearance,
+recomputed from each run's summary.json (the per-frame evidence diagnostic: a frame whose widest
+translation or rotation width is null left some axis open) and eval report, so folders made
+before the warning existed count too. Far off: final insertion error above FAR x the clearance
+(5); within: at most the clearance. Prints, per source and method, the far-off runs flagged and
+the within-clearance runs flagged (false alarms), at each --thresholds value.
+
+A source is a benchmark folder (its runs/), a folder of run folders (scripts/config_ablation.py's
+output) or a .jsonl.gz written by --export (one line per run: source, run, method, the insertion
+error over the clearance, the per-frame pinned flags), which keeps what this needs from run
+folders that are not kept (benchmarks/accuracy/suspect/).
+Usage: .venv/bin/python scripts/suspect_check.py SOURCE [SOURCE ...] [--thresholds 0.3,0.4,0.5]
+       [--far 5] [--export OUT.jsonl.gz]"""
+import argparse
+import collections
+import gzip
+import json
+from pathlib import Path
+
+from mvtop_cli.filter.health import suspect_warning
+
+
+def records(source: Path) -> list[dict]:
+    """One record per finished run of ``source``."""
+    if source.suffix == ".gz":
+        with gzip.open(source, "rt") as f:
+            return [json.loads(line) for line in f]
+    base = source / "runs" if (source / "runs").is_dir() else source
+    out = []
+    for run in sorted(base.iterdir()):
+        if not ((run / "summary.json").is_file() and (run / "eval" / "report.json").is_file()):
+            continue
+        summary = json.loads((run / "summary.json").read_text())
+        report = json.loads((run / "eval" / "report.json").read_text())
+        out.append({"source": str(source), "run": run.name, "method": run.name.rsplit("_", 1)[1],
+                    "ratio": report["final"]["insertion_error_mm"] / report["clearance_mm"],
+                    "pinned": [r[2] is not None and r[3] is not None
+                               for r in summary["evidence"]["per_frame"]["rows"]]})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sources", nargs="+", type=Path)
+    ap.add_argument("--thresholds", default="0.4")
+    ap.add_argument("--far", type=float, default=5.0)
+    ap.add_argument("--export", type=Path)
+    a = ap.parse_args()
+    thresholds = [float(t) for t in a.thresholds.split(",")]
+    everything = []
+    for source in a.sources:
+        recs = records(source)
+        everything += recs
+        by_source = collections.defaultdict(list)
+        for r in recs:
+            by_source[r["source"]].append(r)
+        for name, rs in by_source.items():
+            counts = collections.defaultdict(collections.Counter)
+            for r in rs:
+                kind = "far" if r["ratio"] > a.far else "within" if r["ratio"] <= 1.0 else None
+                for m in (r["method"], "all"):
+                    counts[m]["runs"] += 1
+                    if kind:
+                        counts[m][kind] += 1
+                        for t in thresholds:
+                            counts[m][(kind, t)] += suspect_warning(r["pinned"], t) is not None
+            for m, c in sorted(counts.items(), key=lambda kv: (kv[0] == "all", kv[0])):
+                parts = [f"threshold {t:g}: far off flagged {c[('far', t)]} of {c['far']}, "
+                         f"within the clearance flagged {c[('within', t)]} of {c['within']}" for t in thresholds]
+                print(f"{name} {m:6s} {c['runs']:3d} runs; " + "; ".join(parts))
+    if a.export:
+        with gzip.open(a.export, "wt") as f:
+            f.writelines(json.dumps(r) + "\n" for r in everything)
+
+
+if __name__ == "__main__":
+    main()
