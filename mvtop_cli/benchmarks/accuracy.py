@@ -113,7 +113,9 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     t0, c0 = time.perf_counter(), time.process_time()
     extra = {}
     if method in MODALITY_SETS:
-        estimate(log, cfg, run, EstimateOptions(modalities=MODALITY_SETS[method], num_particles=particles, seed=seed))
+        summary = estimate(log, cfg, run, EstimateOptions(modalities=MODALITY_SETS[method], num_particles=particles,
+                                                          seed=seed))
+        extra = {"warning_counts": summary["warning_counts"]}
     else:  # the baseline
         from .baselines.chsel_runner import ChselOptions
         from .baselines.run import BaselineOptions, estimate_chsel
@@ -173,6 +175,7 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
                                     "max": float(np.max(vals))}
                 summary["table"].setdefault(method, {})[obj] = agg
     summary["final_errors"] = final_errors(reports, options.objects, options.methods)
+    summary["suspect"] = suspect_tally(reports, options.methods)
     write_results(out_dir / RESULTS_FILE, reports)
     with atomic_output(out_dir / "summary.json", "w") as fh:
         json.dump(summary, fh, indent=2)
@@ -228,6 +231,32 @@ def final_errors(reports: dict[tuple, dict], objects, methods) -> dict:
             rs = [r for (o, s, m), r in sorted(reports.items()) if o == obj and m == method]
             if rs:
                 out.setdefault(method, {})[obj] = {k: [r["final"].get(k) for r in rs] for k, _, _ in FIGURE_METRICS}
+    return out
+
+
+SUSPECT_FAR_FACTOR = 5.0  # a run is far off when its final insertion error exceeds this many clearances
+
+
+def suspect_tally(reports: dict[tuple, dict], methods) -> dict:
+    """method -> how the ``suspect_estimate`` warning (filter/health.py) fell: of the runs far
+    off (final insertion error above ``SUSPECT_FAR_FACTOR`` clearances) and of those within the
+    clearance, how many raised it. Only runs that recorded their warnings count (results made
+    before they were recorded, and the baseline, have none); methods without such runs are left out."""
+    out: dict = {}
+    for method in methods:
+        tally = {"runs": 0, "far_off": 0, "far_off_flagged": 0, "within": 0, "within_flagged": 0}
+        for (_, _, m), r in sorted(reports.items()):
+            counts, f = r.get("benchmark", {}).get("warning_counts"), r["final"]
+            clearance, err = r.get("clearance_mm") or f.get("clearance_mm"), f.get("insertion_error_mm")
+            if m != method or counts is None or not clearance or err is None:
+                continue
+            flagged = counts.get("suspect_estimate", 0) > 0
+            tally["runs"] += 1
+            for kind, hit in (("far_off", err > SUSPECT_FAR_FACTOR * clearance), ("within", err <= clearance)):
+                tally[kind] += hit
+                tally[f"{kind}_flagged"] += hit and flagged
+        if tally["runs"]:
+            out[method] = tally
     return out
 
 
@@ -348,4 +377,10 @@ def format_table(summary: dict) -> str:
                     cell += f" (registration {reg['median']:.1f}" + cpu_part + ")"
                 cells.append(cell)
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    if summary.get("suspect"):
+        lines += ["", f"## suspect_estimate warnings (far off: final insertion error above {SUSPECT_FAR_FACTOR:g} "
+                  "clearances)", ""]
+        for method, t in summary["suspect"].items():
+            lines.append(f"- {method}: far off {t['far_off_flagged']} flagged of {t['far_off']}; within the "
+                         f"clearance {t['within_flagged']} flagged of {t['within']} ({t['runs']} runs)")
     return "\n".join(lines) + "\n"

@@ -55,6 +55,11 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert agg["runs"] == 1
     assert abs(agg["pose_error_mm"]["median"] - report["final"]["pose_error_mm"]) < 1e-9
     assert f"| M-TOP | {agg['pose_error_mm']['median']:.2f} /" in first.stdout
+    # each run keeps the warnings it raised, and the summary says how the suspect_estimate warning fell
+    counts = json.loads((out / "runs" / "conn2_1000_M-TOP" / "summary.json").read_text())["warning_counts"]
+    assert report["benchmark"]["warning_counts"] == counts
+    assert summary["suspect"]["M-TOP"]["runs"] == 1
+    assert "- M-TOP: far off " in first.stdout
     stamp = result.stat().st_mtime_ns
     again = run(*args)
     assert again.returncode == 0, again.stderr
