@@ -240,19 +240,20 @@ SUSPECT_FAR_FACTOR = 5.0  # a run is far off when its final insertion error exce
 def suspect_tally(reports: dict[tuple, dict], methods) -> dict:
     """method -> how the ``suspect_estimate`` warning (filter/health.py) fell: of the runs far
     off (final insertion error above ``SUSPECT_FAR_FACTOR`` clearances) and of those within the
-    clearance, how many raised it. Only runs that recorded their warnings count (results made
-    before they were recorded, and the baseline, have none); methods without such runs are left out."""
+    clearance (``final.insertable``), how many raised it. Only runs that recorded their warnings
+    count (results made before they were recorded, and the baseline, have none); methods without
+    such runs are left out."""
     out: dict = {}
     for method in methods:
         tally = {"runs": 0, "far_off": 0, "far_off_flagged": 0, "within": 0, "within_flagged": 0}
         for (_, _, m), r in sorted(reports.items()):
-            counts, f = r.get("benchmark", {}).get("warning_counts"), r["final"]
-            clearance, err = r.get("clearance_mm") or f.get("clearance_mm"), f.get("insertion_error_mm")
+            counts, clearance, f = r.get("benchmark", {}).get("warning_counts"), r.get("clearance_mm"), r["final"]
+            err = f.get("insertion_error_mm")
             if m != method or counts is None or not clearance or err is None:
                 continue
             flagged = counts.get("suspect_estimate", 0) > 0
             tally["runs"] += 1
-            for kind, hit in (("far_off", err > SUSPECT_FAR_FACTOR * clearance), ("within", err <= clearance)):
+            for kind, hit in (("far_off", err > SUSPECT_FAR_FACTOR * clearance), ("within", bool(f["insertable"]))):
                 tally[kind] += hit
                 tally[f"{kind}_flagged"] += hit and flagged
         if tally["runs"]:
