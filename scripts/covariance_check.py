@@ -3,7 +3,10 @@ spread alone and with the evidence's widths added, times each of ``--factors``
 (`output.covariance: particles_and_evidence`, `output.evidence_width_factor`,
 estimator/evidence.py), recomputed from each run's summary.json by `mvtop eval`'s own NEES.
 Prints one line per run and, per method and object, the fraction within the chi-square 95 % bound.
-Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--json OUT.json]"""
+With ``--suspect F`` also the covariance a run reports when at least the fraction F of its frames
+left some pose axis open (``output.suspect_unpinned_fraction``): the particles' spread plus the grasp
+prior's on every axis (``nees_suspect``; other runs keep the default widths x3).
+Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--suspect 0.4] [--json OUT.json]"""
 import argparse
 import collections
 import json
@@ -34,6 +37,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bench", type=Path)
     ap.add_argument("--factors", default="1,3", help="comma-separated evidence width factors")
+    ap.add_argument("--suspect", type=float, default=None, help="suspect_unpinned_fraction to test")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     factors = [float(f) for f in args.factors.split(",")]
@@ -63,11 +67,19 @@ def main() -> None:
                "nees_particles": nees_with(run, log, particles)}
         for f in factors:
             row[f"nees_evidence_x{f:g}"] = nees_with(run, log, particles + evidence_covariance(widths, prior, f))
+        if args.suspect is not None:
+            frames = summary["evidence"]["per_frame"]["rows"]
+            open_frames = sum(r[2] is None or r[3] is None for r in frames)
+            row["suspect"] = bool(frames) and open_frames / len(frames) >= args.suspect
+            row["nees_suspect"] = nees_with(run, log, particles + (
+                evidence_covariance(np.full(6, np.inf), prior) if row["suspect"] else evidence_covariance(widths, prior, 3.0)))
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
     keys = ["nees_particles"] + [f"nees_evidence_x{f:g}" for f in factors]
+    if args.suspect is not None:
+        keys.append("nees_suspect")
     groups = collections.defaultdict(list)
     for r in rows:
         groups[(r["method"], "all")].append(r)
@@ -75,7 +87,8 @@ def main() -> None:
     for (method, obj), rs in sorted(groups.items()):
         within = {k: sum(r[k] <= r["bound"] for r in rs) for k in keys}
         print(f"{method:7s} {obj:10s} {len(rs):3d} runs, NEES within the 95 % bound: particles {within[keys[0]]}, "
-              + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:])))
+              + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:]))
+              + (f", suspect -> prior {within['nees_suspect']}" if args.suspect is not None else ""))
 
 
 if __name__ == "__main__":

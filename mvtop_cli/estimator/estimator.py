@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import Config
-from ..filter.health import SensorConsistency, jump_warning, step_warnings, warning
+from ..filter.health import SensorConsistency, is_suspect, jump_warning, step_warnings, warning
 from ..filter.particles import ParticleSet
 from ..filter.pf import ParticleFilter
 from ..filter.result import StepResult
@@ -68,8 +68,10 @@ class FrameEstimate:
     sensor_iou: dict[str, float] = field(default_factory=dict)
     # how well the evidence pins the estimate (``evidence.EvidenceReport``); None when nothing was observed
     evidence: EvidenceReport | None = None
-    # the sensor consistency watch after this frame (``Estimator.restore_consistency`` on resume)
+    # the state carried to the next frame (``Estimator.resume_after`` on resume): the sensor consistency
+    # watch, and the frames so far whose evidence left some pose axis open, of those with evidence
     consistency: dict = field(default_factory=dict)
+    unpinned: tuple[int, int] = (0, 0)
     # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
     timings: dict = field(default_factory=dict)
     # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
@@ -121,6 +123,7 @@ class Estimator:
         self.last_likelihood: Likelihood | None = None
         self._search_s = 0.0  # search time of the current frame
         self.use_contact = "contact" in cfg.modalities
+        self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
 
     @classmethod
     def from_config(cls, cfg: Config, frame_pose: Callable[[str, int], np.ndarray] | None = None) -> Estimator:
@@ -183,13 +186,22 @@ class Estimator:
                 warnings.append(jump_warning(frame.index, jump, self.pf.jump_sigmas, cause))
                 flags.append("estimate_jump")
 
+        if evidence is not None:
+            self.unpinned = (self.unpinned[0] + (not evidence.pinned), self.unpinned[1] + 1)
+        suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
+        if suspect:
+            flags.append("suspect_estimate")
+
         self.particles = result.particles
         est = result.estimate
         covariance = result.spread.covariance
-        if evidence is not None and self.cfg.output.covariance == "particles_and_evidence":
+        if self.cfg.output.covariance == "particles_and_evidence" and (evidence is not None or suspect):
             # the particles can collapse further than the evidence supports (tempering, resampling):
-            # the reported covariance adds what the likelihood itself leaves open about the estimate
-            covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma,
+            # the reported covariance adds what the likelihood itself leaves open about the estimate;
+            # once the evidence has left some axis open too often (a wrong mode the sensors cannot
+            # rule out), all of the grasp prior's spread
+            widths = np.full(6, np.inf) if suspect else evidence.likelihood_sigma
+            covariance = covariance + evidence_covariance(widths, self.prior.sigma,
                                                           self.cfg.output.evidence_width_factor)
         n = len(result.particles.poses)
         keep = self.rng.choice(n, size=min(self.cfg.output.track_particles, n), replace=False)
@@ -201,17 +213,20 @@ class Estimator:
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
+            unpinned=self.unpinned,
             timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
                      "filter_s": t_filter - t_masks - self._search_s, "likelihood_s": likelihood.seconds,
                      "likelihood_calls": likelihood.calls, "poses_scored": likelihood.evaluated,
                      "step_s": time.perf_counter() - t_step},
         )
 
-    def restore_consistency(self, state: dict) -> None:
-        """Continue the sensor consistency watch from a frame's ``FrameEstimate.consistency``
-        (a resumed run then scales the same sensors down at the same frames)."""
-        self.consistency.factors = dict(state.get("factors", {}))
-        self.consistency.streak = dict(state.get("streak", {}))
+    def resume_after(self, last: FrameEstimate) -> None:
+        """Continue after frame ``last`` with the state it carried over: the sensor consistency
+        watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
+        same frames) and the count of frames that left an axis open (``FrameEstimate.unpinned``)."""
+        self.consistency.factors = dict(last.consistency.get("factors", {}))
+        self.consistency.streak = dict(last.consistency.get("streak", {}))
+        self.unpinned = tuple(last.unpinned)
 
     def _evidence(self, likelihood: Likelihood, T_ee_object: np.ndarray, sensor_iou: dict[str, float],
                   observed: bool) -> EvidenceReport | None:

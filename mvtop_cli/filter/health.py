@@ -247,6 +247,13 @@ def count_warnings(warnings: list[dict]) -> dict[str, int]:
     return counts
 
 
+def is_suspect(open_frames: int, frames: int, max_unpinned_fraction: float | None) -> bool:
+    """Whether ``open_frames`` of ``frames`` frames with evidence, those whose likelihood leaves
+    some pose axis open (``EvidenceReport.pinned`` False), make up at least
+    ``max_unpinned_fraction`` of them (``output.suspect_unpinned_fraction``; None: never)."""
+    return max_unpinned_fraction is not None and frames > 0 and open_frames / frames >= max_unpinned_fraction
+
+
 def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None) -> dict | None:
     """The run's ``suspect_estimate`` record, or None: raised when the frames whose likelihood
     leaves some pose axis open (``EvidenceReport.pinned`` False, one entry per frame with
@@ -255,17 +262,16 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None) -> 
     every sensor explains: at 0.4 it flagged 61 % of the simulated runs that ended far off (above
     5x the clearance) where it was chosen and 33 % on grasps it was not chosen on, at about 4 %
     false alarms (README: The suspect_estimate warning)."""
-    if max_unpinned_fraction is None or not pinned:
-        return None
     open_frames = sum(not p for p in pinned)
-    fraction = open_frames / len(pinned)
-    if fraction < max_unpinned_fraction:
+    if not is_suspect(open_frames, len(pinned), max_unpinned_fraction):
         return None
+    fraction = open_frames / len(pinned)
     return warning(
         None, "suspect_estimate",
         f"the evidence left some pose axis open in {open_frames} of {len(pinned)} frames ({100 * fraction:.0f} %, "
-        f"threshold {100 * max_unpinned_fraction:.0f} %): the estimate may be far off whatever its reported spread; "
-        "check it against another measurement before relying on it",
+        f"threshold {100 * max_unpinned_fraction:.0f} %): the estimate may be far off; from the frame this share was "
+        "reached its covariance is the grasp prior's spread (flag suspect_estimate); check it against another "
+        "measurement before relying on it",
         unpinned_frames=open_frames, frames=len(pinned), unpinned_fraction=fraction,
     )
 

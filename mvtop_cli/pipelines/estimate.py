@@ -163,7 +163,7 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
     if restored.rng_state is not None:
         estimator.rng.bit_generator.state = restored.rng_state  # the filter's generator too (one object)
     if done:  # the state the last completed frame carried over, kept in its journal record
-        estimator.restore_consistency(ck.results()[done - 1].consistency)
+        estimator.resume_after(ck.results()[done - 1])
     if progress is not None:  # at once, from the resumed frame (0 for a fresh run)
         progress(min(done, total), total)
     primed: set[str] = set()

@@ -54,3 +54,41 @@ def test_moving_occluders_need_a_frame_pose():
         frame = next(iter(FrameReader(log, sensor_topics(cfg), log_topics(cfg))))
     with pytest.raises(ValueError, match=f"TF frame {moving[0]!r}: give the Estimator a frame_pose"):
         estimator.step(frame)
+
+
+def _vision_only_steps(threshold: float | None) -> list[FrameEstimate]:
+    """Eight frames of the shaft peg sample with the cameras alone (they cannot see its roll
+    about its long axis), 120 particles, ``output.suspect_unpinned_fraction`` = ``threshold``."""
+    cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
+    cfg = replace(cfg, modalities=("vision",), filter=replace(cfg.filter, num_particles=120),
+                  output=replace(cfg.output, suspect_unpinned_fraction=threshold))
+    with McapLog(ROOT / "sample_logs" / "shaft_peg.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        return [estimator.step(frame) for frame, _ in zip(reader, range(8))]
+
+
+def test_a_suspect_frame_reports_the_grasp_priors_spread():
+    """Once the frames whose evidence left some pose axis open reach the share
+    ``output.suspect_unpinned_fraction``, each further frame is flagged ``suspect_estimate`` and its
+    covariance holds the grasp prior's whole spread on every axis; the estimates are unchanged."""
+    from mvtop_cli.estimator.prior import GraspPriorModel
+
+    plain, watched = _vision_only_steps(None), _vision_only_steps(0.1)
+    cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
+    prior_var = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma ** 2
+    open_so_far = np.cumsum([not r.evidence.pinned for r in plain])
+    assert [r.unpinned for r in watched] == [(int(k), i + 1) for i, k in enumerate(open_so_far)]
+    assert 0 < open_so_far[-1] < 8  # this log has both kinds of frame
+    for p, w, k in zip(plain, watched, open_so_far):
+        np.testing.assert_array_equal(w.T_ee_object, p.T_ee_object)
+        assert "suspect_estimate" not in p.flags
+        suspect = k / (w.index + 1) >= 0.1
+        assert ("suspect_estimate" in w.flags) == suspect
+        if suspect:
+            assert np.all(np.diag(w.covariance) >= prior_var)
+            # the axes the frame pinned widen to the prior's spread; an open one had it already
+            assert np.all(np.diag(w.covariance) >= np.diag(p.covariance))
+            assert np.any(np.diag(w.covariance) > np.diag(p.covariance))
+        else:
+            np.testing.assert_array_equal(w.covariance, p.covariance)
