@@ -71,8 +71,8 @@ def main() -> None:
             frames = summary["evidence"]["per_frame"]["rows"]
             open_frames = sum(r[2] is None or r[3] is None for r in frames)
             row["suspect"] = bool(frames) and open_frames / len(frames) >= args.suspect
-            row["nees_suspect"] = nees_with(run, log, particles + (
-                evidence_covariance(np.full(6, np.inf), prior) if row["suspect"] else evidence_covariance(widths, prior, 3.0)))
+            open_widths = np.full(6, np.inf) if row["suspect"] else widths  # suspect: the prior's spread
+            row["nees_suspect"] = nees_with(run, log, particles + evidence_covariance(open_widths, prior, 3.0))
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
