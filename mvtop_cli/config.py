@@ -238,7 +238,17 @@ class MaskingConfig:
                "grasp prior (prior_samples fixed poses in the end-effector frame, so no belief shapes the mask: "
                "the belief only chooses among the proposals)"})
     prior_samples: int = field(default=256, metadata=_rng(
-        8, 100_000, doc="with grabcut_prompt: prior, the grasp-prior poses whose silhouettes seed the GrabCut"))
+        8, 100_000, doc="with grabcut_prompt: prior or camera_evidence: colour, the grasp-prior poses whose "
+                        "silhouettes seed the GrabCut or the colour histograms"))
+    camera_evidence: Literal["masks", "colour"] = field(default="masks", metadata={
+        "doc": "what a camera's eq. 2 term compares each pose with: the observed mask of Algorithm 1-2 (masks), or "
+               "each pixel's object probability from colour histograms of the object and its surroundings, learned "
+               "where the grasp prior places the part, scored as a soft IoU (masking/colour.py; no belief enters it)"})
+    colour_bins: int = field(default=16, metadata=_rng(
+        2, 256, doc="with camera_evidence: colour, histogram levels per RGB channel (a divisor of 256)"))
+    colour_margin_px: float = field(default=24.0, metadata=_rng(
+        0.0, 1000.0, doc="with camera_evidence: colour, image pixels around the grasp prior's window from which "
+                         "the background histogram is learned too"))
     belief_band_px: int = field(default=0, metadata=_rng(
         0, 64, doc="the belief's GrabCut proposal leaves at least this many ROI pixels on either side of the "
                    "belief's outline to the image's colours and edges (0: only where the likely poses disagree, "
@@ -647,6 +657,8 @@ def _check_semantics(cfg: Config) -> None:
                                   "(leave 'weight' out for the default share)")
     if len(set(cfg.modalities)) != len(cfg.modalities):
         raise _Invalid("modalities", "a modality is listed twice")
+    if 256 % cfg.masking.colour_bins:
+        raise _Invalid("masking.colour_bins", f"expected a divisor of 256 (e.g. 16), got {cfg.masking.colour_bins}")
     if not cfg.modalities:
         raise _Invalid("modalities", f"expected at least one of {', '.join(MODALITIES)}")
     meshes = [("object.mesh", cfg.object.mesh)] + [("object.render_mesh", cfg.object.render_mesh)] * bool(

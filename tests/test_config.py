@@ -95,6 +95,15 @@ def test_missing_required_key(cfg_dir):
         load_config(path)
 
 
+def test_colour_bins_must_divide_the_channel_range(cfg_dir):
+    path = write(cfg_dir, BASE, {"masking.camera_evidence": "colour", "masking.colour_bins": 24})
+    with pytest.raises(ConfigError, match=r"masking\.colour_bins: expected a divisor of 256 \(e\.g\. 16\), got 24"):
+        load_config(path)
+    path = write(cfg_dir, BASE, {"masking.camera_evidence": "edges"})
+    with pytest.raises(ConfigError, match=r"masking\.camera_evidence"):
+        load_config(path)
+
+
 def test_duplicate_sensor_names(cfg_dir):
     path = write(cfg_dir, BASE, {"sensors.tactile": [
         {"name": "front", "image_topic": "/t", "info_topic": "/ti"}]})

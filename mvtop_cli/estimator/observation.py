@@ -27,6 +27,7 @@ from ..errors import ConfigError
 from ..filter.particles import ParticleSet
 from ..masking.base import MaskContext, get_backend
 from ..masking.belief import belief_probability, grabcut_from_belief
+from ..masking.colour import object_probability
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
 from ..render.roi import Roi, roi_for_particles
@@ -152,15 +153,17 @@ class Observation:
 
     def iou_with(self, name: str, full: np.ndarray) -> float:
         """IoU of sensor ``name``'s observed mask with a full-image mask (H, W) bool, e.g. the
-        true silhouette, in ROI pixels; what either mask holds outside the ROI window counts as
-        not shared. 0 when the sensor has no observed mask in this frame."""
+        true silhouette, in ROI pixels (a soft IoU for soft evidence); what either mask holds
+        outside the ROI window counts as not shared. 0 when the sensor has no observed mask in
+        this frame."""
         m = self.masks.get(name)
         if m is None:
             return 0.0
         roi = self.rois[name]
-        inside = roi.crop(full)
-        union = np.logical_or(m, inside).sum() + roi.outside_area(full) + self.outside[name]
-        return float(np.logical_and(m, inside).sum() / union) if union else 1.0
+        m, inside = np.asarray(m, dtype=np.float64), roi.crop(full)
+        shared = m[inside].sum()
+        union = m.sum() + inside.sum() - shared + roi.outside_area(full) + self.outside[name]
+        return float(shared / union) if union else 1.0
 
 
 class ObservationModel:
@@ -179,19 +182,20 @@ class ObservationModel:
         # fixed grasp-prior poses (ee frame) that seed the camera GrabCut with grabcut_prompt: prior; their own
         # generator, so the filter's draws are the same either way
         self.prompt_poses = (GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(
-            m.prior_samples, np.random.default_rng(cfg.filter.seed)).poses if m.grabcut_prompt == "prior" else None)
+            m.prior_samples, np.random.default_rng(cfg.filter.seed)).poses
+            if m.grabcut_prompt == "prior" or m.camera_evidence == "colour" else None)
 
-    def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None) -> dict[str, Roi]:
+    def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None, margin_px: float = 4.0) -> dict[str, Roi]:
         """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
-        every pose of ``T_ee_object`` (N, 4, 4): its silhouette for cameras, its gel contact
-        for tactile."""
+        every pose of ``T_ee_object`` (N, 4, 4) with ``margin_px`` image pixels around: its
+        silhouette for cameras, its gel contact for tactile."""
         out = {}
         for name in sensors if sensors is not None else {**frame.cameras, **frame.tactile}:
             tactile = name in frame.tactile
             out[name] = roi_for_particles(
                 self.scene.renderer.mesh(OBJECT_ID), frame.T_sensor_object(name, T_ee_object), frame.image(name).camera,
                 "tactile" if tactile else "silhouette", self.gel_distance_m[name] if tactile else None,
-                max_side=self.cfg.filter.roi_size_px,
+                max_side=self.cfg.filter.roi_size_px, margin_px=margin_px,
             )
         return out
 
@@ -217,6 +221,10 @@ class ObservationModel:
                 full = self.observer.recorded_mask(img)
                 if full is not None:
                     masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
+        elif frame.cameras and self.cfg.masking.camera_evidence == "colour":
+            mask_mode = "colour"
+            for name, m in self.colour_maps(frame, frame.cameras, rois, occluders).items():
+                masks[name], outside[name] = m
         elif frame.cameras:
             if converged:
                 mean = belief.mean() if self.fold is None else belief.spread(self.fold).mean
@@ -259,17 +267,14 @@ class ObservationModel:
             roi = rois[name]
             rendered[name] = self.scene.renderer.render_masks(
                 OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
-            if self.prompt_poses is None:
-                prompt, prompt_roi, prompt_weights = rendered[name], roi, weights
+            if self.cfg.masking.grabcut_prompt == "belief":
+                prompt_roi, probability = roi, belief_probability(rendered[name], weights)
             else:
-                prompt_roi = self.rois(frame, self.prompt_poses, [name])[name]
-                prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prompt_poses),
-                                                          img.camera, prompt_roi, occluders[name])
-                prompt_weights = np.ones(len(prompt))
+                prompt_roi, probability = self.prior_coverage(frame, name, img, occluders[name])
             box = (prompt_roi.x0, prompt_roi.y0, prompt_roi.x0 + prompt_roi.width, prompt_roi.y0 + prompt_roi.height)
             props = list(self.observer.camera_proposals(img, box))
-            grabcut = grabcut_from_belief(prompt_roi.image(img.image), belief_probability(prompt, prompt_weights),
-                                          seed=seed, band_px=self.cfg.masking.belief_band_px)
+            grabcut = grabcut_from_belief(prompt_roi.image(img.image), probability, seed=seed,
+                                          band_px=self.cfg.masking.belief_band_px)
             if grabcut is not None:
                 props.insert(0, prompt_roi.paste(grabcut, img.image.shape[:2], fill=False))
             proposals[name] = [roi.crop(p) for p in props]
@@ -277,6 +282,33 @@ class ObservationModel:
         chosen = select_masks(proposals, rendered, {n: 1.0 for n in cameras})
         return {name: (m, outside[name][int(chosen.per_sensor_choice[name][chosen.best_pose_index])])
                 for name, m in chosen.masks.items() if m is not None}
+
+    def prior_coverage(self, frame: Frame, name: str, img: SensorImage, occluders: list,
+                       margin_px: float = 4.0) -> tuple[Roi, np.ndarray]:
+        """The grasp prior's window in camera ``name`` (the ROI of its fixed poses, ``margin_px``
+        image pixels around) and the fraction (h, w) of those poses' silhouettes, behind the
+        occluders, covering each pixel."""
+        roi = self.rois(frame, self.prompt_poses, [name], margin_px)[name]
+        rendered = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prompt_poses),
+                                                    img.camera, roi, occluders)
+        return roi, belief_probability(rendered, np.ones(len(rendered)))
+
+    def colour_maps(self, frame: Frame, cameras: dict[str, SensorImage], rois: dict[str, Roi],
+                    occluders: dict) -> dict[str, tuple[np.ndarray, float]]:
+        """Soft camera evidence (``masking.camera_evidence: colour``): per camera, each pixel's
+        object probability from colour histograms learned where the grasp prior places the part
+        (``masking.colour``), averaged into the ROI ``rois[name]`` (h, w) float32, and its sum
+        outside the ROI (ROI pixels). A camera whose prior window holds no object or no
+        background pixel is left out."""
+        out = {}
+        for name, img in cameras.items():
+            prior_roi, coverage = self.prior_coverage(frame, name, img, occluders[name],
+                                                      self.cfg.masking.colour_margin_px)
+            window = object_probability(prior_roi.image(img.image), coverage, self.cfg.masking.colour_bins)
+            if window is not None:
+                full = prior_roi.paste(window, img.image.shape[:2], fill=np.float32(0.0))
+                out[name] = (rois[name].average(full), rois[name].outside_sum(full))
+        return out
 
     def prompted_masks(self, frame: Frame, rois: dict[str, Roi], occluders: dict,
                        T_ee_object: np.ndarray) -> dict[str, np.ndarray | None]:

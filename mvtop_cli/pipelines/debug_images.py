@@ -40,6 +40,7 @@ from ..estimator import Estimator, FrameEstimate
 from ..geometry.camera import PinholeCamera
 from ..io.mcap_writer import LogWriter
 from ..records import Frame
+from ..render.iou import soft_observed
 from ..render.roi import Roi
 
 TOPIC_PREFIX = "/mvtop/debug"
@@ -49,8 +50,10 @@ KINDS = ("observed", "rendered")
 @dataclass(frozen=True)
 class SensorMasks:
     """One sensor's masks in one frame. ``observed`` and ``rendered``: the ROI masks
-    (``roi.shape``) packed with ``np.packbits``; ``camera`` the full image's intrinsics,
-    ``T_world_sensor`` (4, 4) the optical frame ``frame_id`` in ``world`` at the image's stamp."""
+    (``roi.shape``) packed with ``np.packbits``, or, for soft camera evidence (``soft``), the
+    observed per-pixel object probability in 255 levels (uint8, one byte a pixel); ``camera`` the
+    full image's intrinsics, ``T_world_sensor`` (4, 4) the optical frame ``frame_id`` in ``world``
+    at the image's stamp."""
 
     sensor: str
     frame_id: str
@@ -60,16 +63,21 @@ class SensorMasks:
     T_world_sensor: np.ndarray
     observed: np.ndarray
     rendered: np.ndarray
+    soft: bool = False
 
-    def roi_mask(self, kind: str) -> np.ndarray:
-        """The ROI mask (h, w) bool of ``kind`` (``observed`` or ``rendered``)."""
+    def roi_levels(self, kind: str) -> np.ndarray:
+        """The ROI image (h, w) uint8 of ``kind`` (``observed`` or ``rendered``): 255 on a mask,
+        the probability times 255 for soft evidence."""
         rows, cols = self.roi.shape
-        return np.unpackbits(getattr(self, kind), count=rows * cols).reshape(rows, cols).astype(bool)
+        if kind == "observed" and self.soft:
+            return self.observed.reshape(rows, cols)
+        return np.unpackbits(getattr(self, kind), count=rows * cols).reshape(rows, cols) * np.uint8(255)
 
     def image(self, kind: str) -> np.ndarray:
-        """The full-size mono8 image (H, W) uint8 of ``kind``: 255 on the mask, 0 elsewhere."""
+        """The full-size mono8 image (H, W) uint8 of ``kind``: 255 on the mask (the probability
+        times 255 for soft evidence), 0 elsewhere."""
         shape = (int(self.camera.height), int(self.camera.width))
-        return self.roi.paste(self.roi_mask(kind).astype(np.uint8) * 255, shape, fill=0)
+        return self.roi.paste(self.roi_levels(kind), shape, fill=0)
 
 
 def frame_masks(estimator: Estimator, frame: Frame, result: FrameEstimate,
@@ -84,11 +92,12 @@ def frame_masks(estimator: Estimator, frame: Frame, result: FrameEstimate,
     out = []
     for name in obs.sensors:
         img = frame.image(name)
+        observed, soft = obs.masks[name], obs.masks[name].dtype != np.bool_
         out.append(SensorMasks(
             sensor=name, frame_id=frame_ids[name], tactile=name in obs.tactile, roi=obs.rois[name], camera=img.camera,
             T_world_sensor=np.array(img.T_world_sensor, dtype=np.float64),
-            observed=np.packbits(np.asarray(obs.masks[name], dtype=bool).ravel()),
-            rendered=np.packbits(rendered[name].ravel()),
+            observed=soft_observed(observed)[0] if soft else np.packbits(observed.ravel()),
+            rendered=np.packbits(rendered[name].ravel()), soft=soft,
         ))
     return tuple(out)
 

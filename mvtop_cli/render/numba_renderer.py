@@ -10,7 +10,7 @@ from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render import raster
 from mvtop_cli.render.base import DEFAULT_ZNEAR_M, Occluder, RendererBase, RenderMode
 from mvtop_cli.render.contour import ContourTopology, contour_gradient
-from mvtop_cli.render.iou import iou_from_counts
+from mvtop_cli.render.iou import iou_from_counts, soft_observed
 from mvtop_cli.render.mesh import RenderMesh
 from mvtop_cli.render.roi import Roi
 
@@ -136,9 +136,10 @@ class NumbaMaskRenderer(RendererBase):
         mesh = self.mesh(mesh_id)
         plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
         intr, w, h = _intrinsics(camera, roi)
-        obs = np.asarray(observed, dtype=bool)
+        obs = np.asarray(observed)
         if obs.shape != (h, w):
             raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
+        counts, unit = soft_observed(obs)
         thr = self._threshold(occluders, intr, w, h, plane)
         use_thr = thr is not None
         t = thr if use_thr else np.zeros(1)
@@ -148,14 +149,14 @@ class NumbaMaskRenderer(RendererBase):
         args = (T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m)
         # Runs pay where the observed part covers many pixels per front face (about half the
         # faces of a closed mesh face the camera) and the threshold is the same everywhere.
-        observed_area = float(obs.sum())
-        if t_min == t.max() and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2:
+        observed_area = float(counts.sum(dtype=np.int64)) / unit
+        if (unit == 1 and t_min == t.max()
+                and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2):
             raster.score_runs_kernel(*args, t_min, use_thr, raster.chunk_count(len(T)), raster.pack_rows(obs),
                                      area, inter)
-        else:
-            raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)),
-                                      np.ascontiguousarray(obs).reshape(-1).view(np.uint8), area, inter)
-        return iou_from_counts(area, inter, observed_area + observed_outside, empty_score)
+        else:  # the byte kernel adds each covered pixel's count: a soft mask's probabilities in 1/255 steps
+            raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)), counts, area, inter)
+        return iou_from_counts(area, inter / unit, observed_area + observed_outside, empty_score)
 
     def contour_gradient(
         self,

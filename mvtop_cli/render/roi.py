@@ -104,7 +104,12 @@ class Roi:
     def coverage(self, mask: np.ndarray) -> np.ndarray:
         """Fraction (h, w) float32 in [0, 1] of each ROI pixel covered by the full-image
         ``mask`` (H, W) bool, by area averaging."""
-        win = self._window(np.asarray(mask, dtype=bool).astype(np.float32))
+        return self.average(np.asarray(mask, dtype=bool))
+
+    def average(self, values: np.ndarray) -> np.ndarray:
+        """The full-image map ``values`` (H, W) (e.g. a per-pixel probability) averaged over the
+        image pixels each ROI pixel covers: (h, w) float32, zero outside the image."""
+        win = self._window(np.asarray(values, dtype=np.float32))
         rows, cols = self.shape
         if (rows, cols) == win.shape:
             return win
@@ -123,9 +128,14 @@ class Roi:
     def outside_area(self, mask: np.ndarray) -> float:
         """Area of ``mask`` (H, W) bool outside the ROI window, in ROI pixels (image pixels
         times ``scale**2``); pass it to the IoU so scores cover the whole image."""
-        m = np.asarray(mask, dtype=bool)
-        inside = self._window(m).sum()
-        return float((m.sum() - inside) * self.scale**2)
+        return self.outside_sum(np.asarray(mask, dtype=bool))
+
+    def outside_sum(self, values: np.ndarray) -> float:
+        """The sum of the full-image map ``values`` (H, W) outside the ROI window, in ROI pixels:
+        :meth:`outside_area` of a soft mask."""
+        m = np.asarray(values, dtype=np.float32)
+        inside = self._window(m).sum(dtype=np.float64)
+        return float((m.sum(dtype=np.float64) - inside) * self.scale**2)
 
     def paste(self, roi_image: np.ndarray, image_shape: tuple[int, int], fill=0) -> np.ndarray:
         """Place a ROI image (h, w) back into a full image of ``image_shape`` (H, W) (nearest

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -175,3 +176,19 @@ def test_the_foxglove_layout_names_topics_of_the_track(runs):
         named |= {p["value"].split(".")[0] for p in panel.get("paths", [])}
     assert {"/mvtop/debug/front/observed", "/mvtop/debug/left/rendered", "/mvtop/debug/left/camera_info"} <= named
     assert named <= {t for t, _s, _m in read_all(runs[1] / "track.mcap")}
+
+
+def test_soft_camera_evidence_is_drawn_as_its_probability(tmp_path):
+    """With ``masking.camera_evidence: colour`` the run's frames say so (``mask_mode``) and a
+    camera's observed debug image is its per-pixel object probability in 255 levels: undecided
+    pixels show as grey, not as a cut mask; the tactile masks stay 0 / 255."""
+    cfg = load_config(CONFIG)
+    cfg = replace(cfg, masking=replace(cfg.masking, camera_evidence="colour"))
+    estimate(LOG, cfg, tmp_path, EstimateOptions(**{**vars(OPTIONS), "debug_images": True}))
+    rows = (tmp_path / "track.csv").read_text().splitlines()
+    assert all(row.split(",")[23] == "colour" for row in rows[1:]) and rows[0].split(",")[23] == "mask_mode"
+    observed = {t: m for t, _s, m in read_all(tmp_path / "track.mcap") if t.endswith("/observed")}
+    front = np.frombuffer(observed["/mvtop/debug/front/observed"].data, np.uint8)
+    assert np.any((front > 0) & (front < 255)) and front.max() > 200
+    left = np.frombuffer(observed["/mvtop/debug/left/observed"].data, np.uint8)
+    assert set(np.unique(left)) <= {0, 255}

@@ -57,6 +57,42 @@ def test_fused_scores_equal_iou_of_rendered_masks(scene, fast):
     assert fused.argmax() == 0 and fused[0] > 0.9
 
 
+def _loop_soft_iou(rendered, probability, outside=0.0):
+    p = np.rint(np.clip(probability, 0, 1) * 255).astype(np.float64) / 255  # the kernels count in 1/255 steps
+    inter = np.array([p[r].sum() for r in rendered])
+    return inter / (rendered.reshape(len(rendered), -1).sum(axis=1) + p.sum() + outside - inter)
+
+
+def test_soft_iou_of_a_probability_map():
+    """A float observation is a per-pixel object probability, scored as the soft IoU
+    sum_R P / (|R| + sum P - sum_R P); a map of 0 and 1 scores as the bool mask does."""
+    rng = np.random.default_rng(1)
+    rendered = rng.random((23, 40, 52)) < rng.uniform(0.0, 0.6, size=(23, 1, 1))
+    probability = rng.random((40, 52)).astype(np.float32)
+    np.testing.assert_allclose(iou_scores(rendered, probability, observed_outside=6.5),
+                               _loop_soft_iou(rendered, probability, 6.5), rtol=1e-12)
+    observed = rng.random((40, 52)) < 0.3
+    np.testing.assert_array_equal(iou_scores(rendered, observed.astype(np.float32)), iou_scores(rendered, observed))
+    with pytest.raises(ValueError, match="bool or float"):
+        iou_scores(rendered, observed.astype(np.uint8))
+
+
+def test_fused_soft_scores_equal_soft_iou_of_rendered_masks(scene, fast):
+    rng = np.random.default_rng(5)
+    T = scene.camera_particles(rng, 48, 0.4)
+    roi = roi_for_particles(fast.mesh("connector"), T, scene.camera, max_side=96)
+    truth = fast.render_masks("connector", T[:1], scene.camera, Roi.full(scene.camera))[0]
+    import cv2
+
+    around = cv2.dilate(truth.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    probability = np.where(truth, 0.8, np.where(around, 0.1, 0.0)).astype(np.float32)  # unsure, about pose 0
+    masks = fast.render_masks("connector", T, scene.camera, roi)
+    observed, outside = roi.average(probability), roi.outside_sum(probability)
+    fused = fast.score_masks("connector", T, scene.camera, roi, observed, observed_outside=outside)
+    np.testing.assert_allclose(fused, iou_scores(masks, observed, observed_outside=outside), rtol=1e-12)
+    assert fused.argmax() == 0
+
+
 def _two_boxes():
     """A non-convex closed mesh: two overlapping boxes, whose front faces overlap on screen."""
     a = trimesh.creation.box((0.02, 0.006, 0.006))
