@@ -327,6 +327,15 @@ class SearchConfig:
     recheck_rounds: int = field(default=3, metadata=_rng(0, 1000))
     recheck_margin: float = field(default=10.0, metadata=_rng(
         0.0, 1e6, doc="nats by which a searched pose must beat the estimate and the best particle to redo the frame"))
+    rival_every: int = field(default=10, metadata=_rng(
+        0, 100_000, doc="every this many frames (frame index + 1 a multiple of it) a fresh search of the grasp prior, "
+                        "with its own generator, looks for another pose that explains the frame about as well as the "
+                        "estimate (a rival mode; flag rival_mode); 0: never"))
+    rival_margin: float = field(default=3.0, metadata=_rng(
+        0.0, 1e6, doc="nats below the estimate's log-likelihood within which the search's best pose is a rival"))
+    rival_translation_m: float = field(default=0.001, metadata=_rng(
+        0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
+    rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
     dissent: bool = field(default=True, metadata={
         "doc": "when a sensor disagrees with the estimate the others agree on (consistency.low_iou / consensus_iou), "
                "search the grasp prior for the poses that sensor explains before its weight is scaled down, and redo "

@@ -25,11 +25,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import Config
-from ..filter.health import SensorConsistency, is_suspect, jump_warning, step_warnings, warning
+from ..filter.health import RivalMode, SensorConsistency, is_suspect, jump_warning, step_warnings, warning
 from ..filter.particles import ParticleSet
 from ..filter.pf import ParticleFilter
 from ..filter.result import StepResult
 from ..filter.search import cross_entropy_search, local_search, tempered_resample
+from ..geometry import se3
 from ..records import Frame
 from .evidence import EvidenceReport, evidence_covariance, likelihood_widths
 from .likelihood import Likelihood
@@ -38,6 +39,8 @@ from .observation import ObservationModel
 from .prior import GraspPriorModel
 from .scene import SceneModel
 from .symmetry import SymmetryFold
+
+_RIVAL_STREAM = 0x52495641  # seeds the rival checks' generators apart from the filter's
 
 
 @dataclass
@@ -72,6 +75,8 @@ class FrameEstimate:
     # watch, and the frames so far whose evidence left some pose axis open, of those with evidence
     consistency: dict = field(default_factory=dict)
     unpinned: tuple[int, int] = (0, 0)
+    # what the last rival check found (None: no rival, or no check yet; ``search.rival_every``)
+    rival: RivalMode | None = None
     # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
     timings: dict = field(default_factory=dict)
     # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
@@ -124,6 +129,7 @@ class Estimator:
         self._search_s = 0.0  # search time of the current frame
         self.use_contact = "contact" in cfg.modalities
         self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
+        self.rival: RivalMode | None = None  # the last rival check's finding
 
     @classmethod
     def from_config(cls, cfg: Config, frame_pose: Callable[[str, int], np.ndarray] | None = None) -> Estimator:
@@ -191,6 +197,16 @@ class Estimator:
         suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
         if suspect:
             flags.append("suspect_estimate")
+        every = self.cfg.search.rival_every
+        if every and (frame.index + 1) % every == 0 and evidence is not None:
+            rival, ruled_out = self._rival_check(frame.index, likelihood, result.estimate)
+            if rival is not None:
+                warnings.append(rival.warning())
+            if rival is not None or ruled_out:
+                self.rival = rival
+        if self.rival is not None:
+            flags.append("rival_mode")
+            suspect = True
 
         self.particles = result.particles
         est = result.estimate
@@ -198,8 +214,8 @@ class Estimator:
         if self.cfg.output.covariance == "particles_and_evidence" and (evidence is not None or suspect):
             # the particles can collapse further than the evidence supports (tempering, resampling):
             # the reported covariance adds what the likelihood itself leaves open about the estimate;
-            # once the evidence has left some axis open too often (a wrong mode the sensors cannot
-            # rule out), all of the grasp prior's spread
+            # once the evidence has left some axis open too often, or another pose explains it about
+            # as well (a mode the sensors cannot rule out), all of the grasp prior's spread
             widths = np.full(6, np.inf) if suspect else evidence.likelihood_sigma
             covariance = covariance + evidence_covariance(widths, self.prior.sigma,
                                                           self.cfg.output.evidence_width_factor)
@@ -213,7 +229,7 @@ class Estimator:
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
-            unpinned=self.unpinned,
+            unpinned=self.unpinned, rival=self.rival,
             timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
                      "filter_s": t_filter - t_masks - self._search_s, "likelihood_s": likelihood.seconds,
                      "likelihood_calls": likelihood.calls, "poses_scored": likelihood.evaluated,
@@ -223,10 +239,12 @@ class Estimator:
     def resume_after(self, last: FrameEstimate) -> None:
         """Continue after frame ``last`` with the state it carried over: the sensor consistency
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
-        same frames) and the count of frames that left an axis open (``FrameEstimate.unpinned``)."""
+        same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``) and
+        the last rival check's finding (``FrameEstimate.rival``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
+        self.rival = last.rival
 
     def _evidence(self, likelihood: Likelihood, T_ee_object: np.ndarray, sensor_iou: dict[str, float],
                   observed: bool) -> EvidenceReport | None:
@@ -277,13 +295,44 @@ class Estimator:
             return self.prior.sample(n, self.rng)
         return tempered_resample(poses, ll, n, self.cfg.filter.resampling, self.rng)
 
-    def _prior_search(self, bounded: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """One cross-entropy search from fresh grasp-prior samples: poses and log-likelihoods."""
+    def _prior_search(self, bounded: Callable[[np.ndarray], np.ndarray],
+                      rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One cross-entropy search from fresh grasp-prior samples: poses and log-likelihoods
+        (drawn from ``rng``, by default the filter's generator)."""
         t0 = time.perf_counter()
-        start = self.prior.sample(self.cfg.filter.num_particles * self.cfg.search.init_factor, self.rng).poses
-        out = cross_entropy_search(start, bounded, self.rng, **self.search)
+        rng = self.rng if rng is None else rng
+        start = self.prior.sample(self.cfg.filter.num_particles * self.cfg.search.init_factor, rng).poses
+        out = cross_entropy_search(start, bounded, rng, **self.search)
         self._search_s += time.perf_counter() - t0
         return out
+
+    def _rival_check(self, index: int, likelihood: Likelihood,
+                     T_ee_object: np.ndarray) -> tuple[RivalMode | None, bool]:
+        """A fresh search of the grasp prior on frame ``index``'s likelihood, from a generator of
+        its own (seeded by ``filter.seed`` and the frame index: the filter's draws, and so the
+        estimates, are the same with or without it). Its best pose is a rival when it lies farther
+        from the estimate ``T_ee_object`` (4, 4) than ``search.rival_translation_m`` or
+        ``rival_rotation_deg`` (after the part's symmetries) and scores at most ``rival_margin``
+        nats below it: the sensors do not tell the two apart. Returns the rival (or None) and
+        whether an earlier rival is ruled out: the search's best pose is the estimate's own mode
+        (within those distances); a best pose far away but scoring lower rules nothing out, so an
+        earlier rival stands. Measured on simulated grasps: touch alone leaves such rivals on the
+        cube, plug and conn1 (1-5 mm away within a few nats), cameras and touch together none
+        within 20 nats (README)."""
+        s = self.cfg.search
+        bounded = self.prior.bounded(likelihood)
+        poses, ll = self._prior_search(bounded, np.random.default_rng([self.cfg.filter.seed, index, _RIVAL_STREAM]))
+        if not np.isfinite(ll).any():
+            return None, False
+        best = poses[int(np.argmax(ll))][None]
+        if self.fold is not None:
+            best = self.fold(best, T_ee_object)
+        moved = 1000.0 * float(np.linalg.norm(best[0, :3, 3] - T_ee_object[:3, 3]))
+        turned = float(np.degrees(se3.rotation_angle(best[0, :3, :3], T_ee_object[:3, :3])))
+        below = float(bounded(T_ee_object[None])[0] - np.max(ll))
+        if moved <= 1000.0 * s.rival_translation_m and turned <= s.rival_rotation_deg:
+            return None, True
+        return (RivalMode(index, moved, turned, below) if below <= s.rival_margin else None), False
 
     def _recheck(self, result: StepResult, first: bool, likelihood: Likelihood,
                  bounded: Callable[[np.ndarray], np.ndarray]) -> StepResult:

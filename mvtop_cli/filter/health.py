@@ -28,7 +28,9 @@ WARNING_KINDS: dict[str, str] = {
     "mesh_open": "an occluder mesh is not watertight (used as it is)",
     "units_suspect": "a mesh's size does not fit the scene: its units may be wrong",
     "contact_grid_coarse": "the contact grid's cells are coarser than the part's clearance",
-    "suspect_estimate": "in many frames the evidence did not pin the estimate on some axis: it may be far off",
+    "suspect_estimate": "in many frames the evidence did not pin the estimate on some axis, or another pose explained "
+                        "it as well: it may be far off",
+    "rival_mode": "a fresh search found another pose that explains the frame about as well as the estimate",
 }
 
 
@@ -247,6 +249,35 @@ def count_warnings(warnings: list[dict]) -> dict[str, int]:
     return counts
 
 
+@dataclass(frozen=True)
+class RivalMode:
+    """What a frame's rival check found (``search.rival_every``): the best pose of a fresh search
+    of the grasp prior lies ``translation_mm`` / ``rotation_deg`` from the estimate (modulo the
+    part's symmetries) and scores ``nats_below`` under it (negative: above it) at ``frame``."""
+
+    frame: int
+    translation_mm: float
+    rotation_deg: float
+    nats_below: float
+
+    def warning(self) -> dict:
+        """The frame's ``rival_mode`` warning record."""
+        return warning(
+            self.frame, "rival_mode",
+            f"another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate explains the "
+            f"sensors {self.comparison}: until a later check rules it out, the covariance is the grasp prior's spread",
+            translation_mm=self.translation_mm, rotation_deg=self.rotation_deg, nats_below=self.nats_below,
+            ratio=-self.nats_below,
+        )
+
+    @property
+    def comparison(self) -> str:
+        """How the rival scores against the estimate, in words."""
+        if self.nats_below >= 0:
+            return f"within {self.nats_below:.1f} nats of it"
+        return f"{-self.nats_below:.1f} nats better than it"
+
+
 def is_suspect(open_frames: int, frames: int, max_unpinned_fraction: float | None) -> bool:
     """Whether ``open_frames`` of ``frames`` frames with evidence, those whose likelihood leaves
     some pose axis open (``EvidenceReport.pinned`` False), make up at least
@@ -254,7 +285,8 @@ def is_suspect(open_frames: int, frames: int, max_unpinned_fraction: float | Non
     return max_unpinned_fraction is not None and frames > 0 and open_frames / frames >= max_unpinned_fraction
 
 
-def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None) -> dict | None:
+def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
+                    rival: RivalMode | None = None) -> dict | None:
     """The run's ``suspect_estimate`` record, or None: raised when the frames whose likelihood
     leaves some pose axis open (``EvidenceReport.pinned`` False, one entry per frame with
     evidence) make up at least ``max_unpinned_fraction`` of them (None: never raised). It sees
@@ -264,7 +296,16 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None) -> 
     false alarms (README: The suspect_estimate warning)."""
     open_frames = sum(not p for p in pinned)
     if not is_suspect(open_frames, len(pinned), max_unpinned_fraction):
-        return None
+        if rival is None:
+            return None
+        return warning(
+            None, "suspect_estimate",
+            f"at frame {rival.frame}, the last rival check, another pose {rival.translation_mm:.2f} mm / "
+            f"{rival.rotation_deg:.2f} deg from the estimate explained the sensors {rival.comparison}: the "
+            "estimate may be either; its covariance is the grasp prior's spread (flag rival_mode); check it against "
+            "another measurement before relying on it",
+            rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,
+        )
     fraction = open_frames / len(pinned)
     return warning(
         None, "suspect_estimate",

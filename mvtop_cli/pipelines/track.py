@@ -36,7 +36,7 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         warnings.extend(r.warnings)
         agreement.append((r.index, getattr(r, "sensor_iou", {})))
     suspect = suspect_warning([r.evidence.pinned for r in results if r.evidence is not None],
-                              cfg.output.suspect_unpinned_fraction)
+                              cfg.output.suspect_unpinned_fraction, getattr(last, "rival", None))
     if suspect is not None:
         warnings.append(suspect)
     out = {

@@ -92,3 +92,59 @@ def test_a_suspect_frame_reports_the_grasp_priors_spread():
             assert np.any(np.diag(w.covariance) > np.diag(p.covariance))
         else:
             np.testing.assert_array_equal(w.covariance, p.covariance)
+
+
+def _touch_steps(modalities: tuple[str, ...], every: int) -> list[FrameEstimate]:
+    """Ten frames of the cube sample with ``modalities``, 120 particles, ``search.rival_every``."""
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    cfg = replace(cfg, modalities=modalities, filter=replace(cfg.filter, num_particles=120),
+                  search=replace(cfg.search, rival_every=every))
+    with McapLog(ROOT / "sample_logs" / "cube.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        return [estimator.step(frame) for frame, _ in zip(reader, range(10))]
+
+
+def test_a_rival_mode_widens_the_covariance_and_changes_no_estimate():
+    """The pads alone, pressed flat by the cube's large faces, cannot place it: the rival check
+    (every 5th frame) finds another pose millimetres away that explains the frame about as well,
+    flags ``rival_mode`` with a warning from that frame on, and the covariance holds the grasp
+    prior's spread; the check draws from its own generator, so the estimates are those of a run
+    without it. With the cameras too, no rival."""
+    from mvtop_cli.estimator.prior import GraspPriorModel
+
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    prior_var = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma ** 2
+    plain, checked = _touch_steps(("tactile", "contact"), 0), _touch_steps(("tactile", "contact"), 5)
+    for p, c in zip(plain, checked):
+        np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
+        assert p.rival is None and "rival_mode" not in p.flags
+    assert all(c.rival is None and "rival_mode" not in c.flags for c in checked[:4])
+    for c in checked[4:]:
+        assert "rival_mode" in c.flags and c.rival.frame in (4, 9)
+        assert c.rival.nats_below <= cfg.search.rival_margin
+        assert c.rival.translation_mm > 1.0 or c.rival.rotation_deg > 3.0
+        assert np.all(np.diag(c.covariance) >= prior_var)
+    found = [w for c in checked for w in c.warnings if w["kind"] == "rival_mode"]
+    assert [w["frame"] for w in found] == [4, 9] and "mm /" in found[0]["detail"]
+    both = _touch_steps(("vision", "tactile", "contact"), 5)
+    assert all(c.rival is None for c in both)
+
+
+def test_a_rival_stands_until_a_check_finds_the_estimates_own_mode(monkeypatch):
+    """A check whose best pose is far away but scores below the margin rules nothing out (the
+    earlier rival stands); one whose best pose is the estimate's own mode clears it."""
+    from mvtop_cli.filter.health import RivalMode
+
+    rival = RivalMode(1, 2.0, 1.0, 0.5)
+    script = iter([(rival, False), (None, False), (None, True)])  # the checks at frames 1, 3 and 5
+    monkeypatch.setattr(Estimator, "_rival_check", lambda self, index, likelihood, T: next(script))
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40), search=replace(cfg.search, rival_every=2))
+    with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        steps = [estimator.step(frame) for frame, _ in zip(reader, range(6))]
+    assert [s.rival for s in steps] == [None, rival, rival, rival, rival, None]
+    assert ["rival_mode" in s.flags for s in steps] == [False, True, True, True, True, False]
+    assert [w["frame"] for s in steps for w in s.warnings if w["kind"] == "rival_mode"] == [1]

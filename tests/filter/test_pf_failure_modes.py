@@ -7,6 +7,7 @@ import pytest
 from mvtop_cli.estimator.motion import MotionModel
 from mvtop_cli.estimator.prior import init_from_prior, init_uniform_box
 from mvtop_cli.filter.health import (
+    RivalMode,
     SensorConsistency,
     check_jump,
     count_warnings,
@@ -258,3 +259,18 @@ def test_suspect_estimate_is_raised_when_enough_frames_leave_an_axis_open():
     assert suspect_warning([], 0.4) is None
     # the terminal line names it as a run warning
     assert warning_lines([w], 10) == [f"suspect_estimate: {w['detail']}"]
+
+
+def test_a_rival_mode_is_a_frame_warning_and_makes_the_run_suspect():
+    rival = RivalMode(frame=19, translation_mm=2.4, rotation_deg=3.3, nats_below=0.5)
+    w = rival.warning()
+    assert w["kind"] == "rival_mode" and w["frame"] == 19 and w["nats_below"] == 0.5
+    assert "2.40 mm / 3.30 deg from the estimate explains the sensors within 0.5 nats of it" in w["detail"]
+    assert "13.0 nats better than it" in RivalMode(9, 1.5, 0.2, -13.0).warning()["detail"]
+    # the run-level record: raised by the last check's rival even where every frame pinned the estimate
+    run = suspect_warning([True] * 30, 0.4, rival)
+    assert run["kind"] == "suspect_estimate" and run["frame"] is None and run["rival_frame"] == 19
+    assert "at frame 19, the last rival check" in run["detail"]
+    assert suspect_warning([True] * 30, 0.4, None) is None
+    # the share of open frames decides first, whatever the rival
+    assert "4 of 10 frames" in suspect_warning([True] * 6 + [False] * 4, 0.4, rival)["detail"]
