@@ -10,20 +10,8 @@ from mvtop_cli.render import _threads  # noqa: F401  (sets OMP_WAIT_POLICY befor
 
 @njit(cache=True, parallel=True)
 def _count(rendered: np.ndarray, observed: np.ndarray, area: np.ndarray, inter: np.ndarray) -> None:
-    n, p = rendered.shape
-    for i in prange(n):
-        a = 0
-        b = 0
-        r = rendered[i]
-        for j in range(p):
-            a += r[j]
-            b += r[j] & observed[j]
-        area[i] = a
-        inter[i] = b
-
-
-@njit(cache=True, parallel=True)
-def _count_weighted(rendered: np.ndarray, observed: np.ndarray, area: np.ndarray, inter: np.ndarray) -> None:
+    """Per rendered mask (N, P) uint8 0/1: its area and the sum of ``observed`` (P,) uint8 counts
+    over its pixels (a bool mask's 0/1, or a soft mask's levels)."""
     n, p = rendered.shape
     for i in prange(n):
         a = 0
@@ -80,7 +68,7 @@ def iou_scores(
     area = np.empty(n, dtype=np.int64)
     inter = np.empty(n, dtype=np.int64)
     if n:
-        _count_weighted(r, o, area, inter) if unit > 1 else _count(r, o, area, inter)
+        _count(r, o, area, inter)
     return iou_from_counts(area, inter / unit, float(o.sum(dtype=np.int64)) / unit + observed_outside, empty_score)
 
 

@@ -56,16 +56,18 @@ def test_moving_occluders_need_a_frame_pose():
         estimator.step(frame)
 
 
-def _vision_only_steps(threshold: float | None) -> list[FrameEstimate]:
-    """Eight frames of the shaft peg sample with the cameras alone (they cannot see its roll
-    about its long axis), 120 particles, ``output.suspect_unpinned_fraction`` = ``threshold``."""
-    cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
-    cfg = replace(cfg, modalities=("vision",), filter=replace(cfg.filter, num_particles=120),
-                  output=replace(cfg.output, suspect_unpinned_fraction=threshold))
-    with McapLog(ROOT / "sample_logs" / "shaft_peg.mcap") as log:
+def _steps(name: str, modalities: tuple[str, ...], frames: int, suspect: float | None = 0.4,
+           rival_every: int = 0) -> list[FrameEstimate]:
+    """The first ``frames`` frames of sample ``name`` stepped online with ``modalities``, 120
+    particles, ``output.suspect_unpinned_fraction`` = ``suspect``, ``search.rival_every``."""
+    cfg = load_config(ROOT / "configs" / f"{name}.yaml")
+    cfg = replace(cfg, modalities=modalities, filter=replace(cfg.filter, num_particles=120),
+                  output=replace(cfg.output, suspect_unpinned_fraction=suspect),
+                  search=replace(cfg.search, rival_every=rival_every))
+    with McapLog(ROOT / "sample_logs" / f"{name}.mcap") as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
         estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
-        return [estimator.step(frame) for frame, _ in zip(reader, range(8))]
+        return [estimator.step(frame) for frame, _ in zip(reader, range(frames))]
 
 
 def test_a_suspect_frame_reports_the_grasp_priors_spread():
@@ -74,7 +76,8 @@ def test_a_suspect_frame_reports_the_grasp_priors_spread():
     covariance holds the grasp prior's whole spread on every axis; the estimates are unchanged."""
     from mvtop_cli.estimator.prior import GraspPriorModel
 
-    plain, watched = _vision_only_steps(None), _vision_only_steps(0.1)
+    # the cameras alone cannot see the shaft peg's roll about its long axis
+    plain, watched = _steps("shaft_peg", ("vision",), 8, None), _steps("shaft_peg", ("vision",), 8, 0.1)
     cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
     prior_var = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma ** 2
     open_so_far = np.cumsum([not r.evidence.pinned for r in plain])
@@ -94,17 +97,6 @@ def test_a_suspect_frame_reports_the_grasp_priors_spread():
             np.testing.assert_array_equal(w.covariance, p.covariance)
 
 
-def _touch_steps(modalities: tuple[str, ...], every: int) -> list[FrameEstimate]:
-    """Ten frames of the cube sample with ``modalities``, 120 particles, ``search.rival_every``."""
-    cfg = load_config(ROOT / "configs" / "cube.yaml")
-    cfg = replace(cfg, modalities=modalities, filter=replace(cfg.filter, num_particles=120),
-                  search=replace(cfg.search, rival_every=every))
-    with McapLog(ROOT / "sample_logs" / "cube.mcap") as log:
-        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
-        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
-        return [estimator.step(frame) for frame, _ in zip(reader, range(10))]
-
-
 def test_a_rival_mode_widens_the_covariance_and_changes_no_estimate():
     """The pads alone, pressed flat by the cube's large faces, cannot place it: the rival check
     (every 5th frame) finds another pose millimetres away that explains the frame about as well,
@@ -115,7 +107,8 @@ def test_a_rival_mode_widens_the_covariance_and_changes_no_estimate():
 
     cfg = load_config(ROOT / "configs" / "cube.yaml")
     prior_var = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma ** 2
-    plain, checked = _touch_steps(("tactile", "contact"), 0), _touch_steps(("tactile", "contact"), 5)
+    touch = ("tactile", "contact")
+    plain, checked = _steps("cube", touch, 10, rival_every=0), _steps("cube", touch, 10, rival_every=5)
     for p, c in zip(plain, checked):
         np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
         assert p.rival is None and "rival_mode" not in p.flags
@@ -127,7 +120,7 @@ def test_a_rival_mode_widens_the_covariance_and_changes_no_estimate():
         assert np.all(np.diag(c.covariance) >= prior_var)
     found = [w for c in checked for w in c.warnings if w["kind"] == "rival_mode"]
     assert [w["frame"] for w in found] == [4, 9] and "mm /" in found[0]["detail"]
-    both = _touch_steps(("vision", "tactile", "contact"), 5)
+    both = _steps("cube", ("vision", "tactile", "contact"), 10, rival_every=5)
     assert all(c.rival is None for c in both)
 
 
