@@ -14,6 +14,9 @@ pose beats both the estimate and the best particle by ``search.recheck_margin`` 
 frame is redone from the searched poses and kept if its estimate fits better. A sensor that
 disagrees with the estimate the others agree on adds the dissent search's poses to that check
 (``search.dissent``): the poses it explains, before the consistency watch scales it down.
+Every ``search.rival_every`` frames a fresh search of the prior, with a generator of its own,
+looks for another pose that explains the frame about as well as the estimate (a rival mode):
+it changes no estimate, only the reported covariance and the warnings.
 """
 
 from __future__ import annotations

@@ -8,7 +8,9 @@ cameras, choosing among the backend's proposals with the belief's best particles
 
 Cameras use ``masking.camera`` (``classical`` by default, or ``sam_onnx`` / ``instance_onnx``):
 zero-shot proposals for Algorithm 1-2 and the promptable mode; with ``topic`` the masks an
-external segmenter recorded in the log are the observation (cropped to the ROI). Tactile sensors use the
+external segmenter recorded in the log are the observation (cropped to the ROI); with
+``masking.camera_evidence: colour`` (and no recorded masks) each camera's observation is instead a
+per-pixel object probability from colour (``masking.colour``), scored as a soft IoU. Tactile sensors use the
 indentation depth topic when the log has one (undeformed pixels removed before binarising),
 else ``masking.tactile`` (``difference``: the change from a no-contact reference frame, given
 as ``options.reference_image`` or taken as the first tactile image of the log).
@@ -135,7 +137,8 @@ class Observation:
     (``gradients``: ``edges.EdgeImage``; not for a camera of ``weight`` 0).
     ``tactile`` and ``cameras`` name the sensors with an observed mask, in the frame's
     order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt``,
-    ``recorded`` from the log's mask topics, or ``none`` without cameras)."""
+    ``recorded`` from the log's mask topics, ``colour`` for per-pixel probabilities (h, w)
+    float32 instead of bool masks, or ``none`` without cameras)."""
 
     rois: dict[str, Roi]
     occluders: dict[str, list]
