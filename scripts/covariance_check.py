@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from mvtop_cli.config import load_config
+from mvtop_cli.config import OutputConfig, load_config
 from mvtop_cli.estimator.evidence import evidence_covariance
 from mvtop_cli.estimator.prior import GraspPriorModel
+from mvtop_cli.filter.health import is_suspect
 from mvtop_cli.pipelines.evaluate import evaluate
 
 
@@ -70,9 +71,10 @@ def main() -> None:
         if args.suspect is not None:
             frames = summary["evidence"]["per_frame"]["rows"]
             open_frames = sum(r[2] is None or r[3] is None for r in frames)
-            row["suspect"] = bool(frames) and open_frames / len(frames) >= args.suspect
+            row["suspect"] = is_suspect(open_frames, len(frames), args.suspect)
             open_widths = np.full(6, np.inf) if row["suspect"] else widths  # suspect: the prior's spread
-            row["nees_suspect"] = nees_with(run, log, particles + evidence_covariance(open_widths, prior, 3.0))
+            row["nees_suspect"] = nees_with(run, log, particles + evidence_covariance(
+                open_widths, prior, OutputConfig().evidence_width_factor))
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
