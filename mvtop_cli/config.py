@@ -238,8 +238,9 @@ class MaskingConfig:
                "grasp prior (prior_samples fixed poses in the end-effector frame, so no belief shapes the mask: "
                "the belief only chooses among the proposals)"})
     prior_samples: int = field(default=256, metadata=_rng(
-        8, 100_000, doc="with grabcut_prompt: prior or camera_evidence: colour, the grasp-prior poses whose "
-                        "silhouettes seed the GrabCut or the colour histograms"))
+        8, 100_000, doc="fixed grasp-prior poses whose silhouettes make the prior's window in each camera (where "
+                        "search.mode_check takes its proposals), and, with grabcut_prompt: prior or camera_evidence: "
+                        "colour, seed the GrabCut or the colour histograms"))
     camera_evidence: Literal["masks", "colour"] = field(default="masks", metadata={
         "doc": "what a camera's eq. 2 term compares each pose with: the observed mask of Algorithm 1-2 (masks), or "
                "each pixel's object probability from colour histograms of the object and its surroundings, learned "
@@ -336,6 +337,16 @@ class SearchConfig:
     rival_translation_m: float = field(default=0.001, metadata=_rng(
         0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
     rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
+    mode_check: bool = field(default=True, metadata={
+        "doc": "with camera proposals (not recorded masks or colour evidence), each rival check also searches the "
+               "grasp prior with every pose choosing its own camera mask among the belief-free proposals (Algorithm 2 "
+               "per pose); when that search's best pose lies beyond rival_translation_m / rival_rotation_deg and beats "
+               "the estimate by recheck_margin nats, the belief is in a wrong mode whose own masks agree with it: the "
+               "frame is redone from the searched poses (flag mode_switch)"})
+    mode_init_factor: int = field(default=2, metadata=_rng(
+        1, 1000, doc="prior samples per particle in the mode check's search (a far better mode is found with fewer "
+                     "than the first frame's search needs to place the estimate)"))
+    mode_rounds: int = field(default=8, metadata=_rng(0, 1000, doc="rounds of the mode check's search"))
     dissent: bool = field(default=True, metadata={
         "doc": "when a sensor disagrees with the estimate the others agree on (consistency.low_iou / consensus_iou), "
                "search the grasp prior for the poses that sensor explains before its weight is scaled down, and redo "

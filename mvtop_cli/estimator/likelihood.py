@@ -49,6 +49,7 @@ import numpy as np
 from ..config import Config
 from ..contact.likelihood import log_contact_likelihood, log_penetration_likelihood
 from ..filter.result import valid_log_likelihood
+from ..masking.selection import iou_matrix
 from ..records import Frame
 from .observation import Observation
 from .scene import OBJECT_ID, SceneModel
@@ -219,6 +220,14 @@ class Likelihood:
         self.calls = 0
         self.seconds = 0.0  # wall time spent scoring (render + IoU + contact)
 
+    def add_counts(self, other: Likelihood) -> None:
+        """Count ``other``'s scored poses, invalid values, calls and time as this one's (a frame
+        redone with new masks reports the work of both)."""
+        self.evaluated += other.evaluated
+        self.invalid += other.invalid
+        self.calls += other.calls
+        self.seconds += other.seconds
+
     def informative(self, ious: dict[str, float]) -> dict[str, bool]:
         """Per observed sensor, whether its IoUs at a pose (``sensor_ious``) say anything: not
         switched off by a configured weight of 0, and not both masks empty (a tactile sensor
@@ -294,8 +303,15 @@ class Likelihood:
         """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
         t0 = time.perf_counter()
         iou_t, iou_v = self.ious(T_ee_object)
-        score = visuo_tactile_score(iou_t, iou_v, self.gamma if len(self.gamma) else None,
-                                    self.nu if len(self.nu) else None, renormalise=False) / self.cfg.filter.temperature
+        return self.log_likelihood(T_ee_object, iou_t, iou_v, self.gamma, self.nu, t0)
+
+    def log_likelihood(self, T_ee_object: np.ndarray, iou_t: np.ndarray, iou_v: np.ndarray, gamma: np.ndarray,
+                       nu: np.ndarray, t0: float) -> np.ndarray:
+        """Eq. 6 of poses (N, 4, 4) from their IoU tables (N, N_T) / (N, N_V) and eq. 2's weights
+        for those columns: the weighted IoU sum over the temperature, the contour and contact
+        terms; counted as scored poses, with the wall time since ``t0``."""
+        score = visuo_tactile_score(iou_t, iou_v, gamma if len(gamma) else None,
+                                    nu if len(nu) else None, renormalise=False) / self.cfg.filter.temperature
         if self.observation.gradients:
             score = score + self.cfg.edges.gain * self.contour_evidence(T_ee_object).sum(axis=1)
         if self.contact:
@@ -310,3 +326,57 @@ class Likelihood:
         self.calls += 1
         self.seconds += time.perf_counter() - t0
         return score
+
+
+# poses rendered at a time by ``ProposalLikelihood``: bounds the (chunk, h, w) masks to a few MB
+_PROPOSAL_CHUNK = 256
+
+
+class ProposalLikelihood:
+    """The frame's log-likelihood with each pose choosing its own camera masks: Algorithm 2 per
+    pose, the best IoU of its rendered silhouette among the camera's belief-free proposals.
+
+    likelihood : the frame's ``Likelihood`` (its tactile masks, contour and contact terms).
+    proposals : camera name -> ``observation.ProposalSet``, the backend's zero-shot proposals
+      in the grasp prior's window (``ObservationModel.proposal_sets``), made from the image
+      alone.
+
+    The frame's own camera masks are chosen by the belief's best particles (Algorithm 1) and
+    seed a GrabCut proposal from its silhouettes, so a belief in a wrong mode picks evidence
+    that agrees with it and scores itself highest. Here no belief enters the evidence: every
+    pose is scored against the proposals it explains best, so two poses far apart compare on
+    equal terms. Eq. 2's weights are the configured ones, without the consistency watch's
+    factors (the watch judges sensors against the belief). The proposals are coarser than the
+    frame's masks (a window covering the whole prior, downsampled to ``filter.roi_size_px``),
+    so the scale is only for comparing poses with each other, not with ``Likelihood``.
+    """
+
+    def __init__(self, likelihood: Likelihood, proposals: dict):
+        self.likelihood = likelihood
+        obs = likelihood.observation
+        self.proposals = proposals
+        self.cameras = [n for n in obs.cameras if n in proposals]
+        self.gamma = likelihood.base_gamma
+        self.nu = np.array([likelihood.base_nu[obs.cameras.index(n)] for n in self.cameras])
+
+    def camera_ious(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Per pose (N, 4, 4) and camera, the best IoU among the camera's proposals (N, N_V)."""
+        L = self.likelihood
+        out = np.empty((len(T_ee_object), len(self.cameras)))
+        for j, name in enumerate(self.cameras):
+            found, img = self.proposals[name], L.frame.cameras[name]
+            T = L.frame.T_sensor_object(name, T_ee_object)
+            for s in range(0, len(T), _PROPOSAL_CHUNK):
+                rendered = L.scene.renderer.render_masks(OBJECT_ID, T[s : s + _PROPOSAL_CHUNK], img.camera, found.roi,
+                                                         L.observation.occluders[name])
+                out[s : s + _PROPOSAL_CHUNK, j] = iou_matrix(rendered, found.masks).max(axis=1)
+        return out
+
+    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
+        t0 = time.perf_counter()
+        L = self.likelihood
+        iou_t = np.empty((len(T_ee_object), len(L.observation.tactile)))
+        for j, name in enumerate(L.observation.tactile):
+            iou_t[:, j] = L.sensor_iou(name, T_ee_object)
+        return L.log_likelihood(T_ee_object, iou_t, self.camera_ious(T_ee_object), self.gamma, self.nu, t0)

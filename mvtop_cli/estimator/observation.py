@@ -169,6 +169,16 @@ class Observation:
         return float(shared / union) if union else 1.0
 
 
+@dataclass(frozen=True)
+class ProposalSet:
+    """One camera's belief-free evidence for comparing far-apart poses
+    (``likelihood.ProposalLikelihood``): the masking backend's zero-shot proposals ``masks``
+    (M, h, w) bool, cropped to ``roi``, the grasp prior's window in that camera."""
+
+    roi: Roi
+    masks: np.ndarray
+
+
 class ObservationModel:
     """Makes each frame's ``Observation`` for the estimator (and the camera masks for the
     baseline). ``frame_pose(frame_name, stamp_ns)`` returns ``T_world_frame`` of a TF frame
@@ -182,11 +192,10 @@ class ObservationModel:
         self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
         self.fold = SymmetryFold.from_config(cfg, scene.symmetries)  # the belief's mean modulo symmetries
         m = cfg.masking
-        # fixed grasp-prior poses (ee frame) that seed the camera GrabCut with grabcut_prompt: prior; their own
-        # generator, so the filter's draws are the same either way
-        self.prompt_poses = (GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(
+        # fixed grasp-prior poses (ee frame): the prior's window in each camera, and what seeds the camera GrabCut
+        # with grabcut_prompt: prior; their own generator, so the filter's draws are the same either way
+        self.prior_poses = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(
             m.prior_samples, np.random.default_rng(cfg.filter.seed)).poses
-            if m.grabcut_prompt == "prior" or m.camera_evidence == "colour" else None)
 
     def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None, margin_px: float = 4.0) -> dict[str, Roi]:
         """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
@@ -286,13 +295,29 @@ class ObservationModel:
         return {name: (m, outside[name][int(chosen.per_sensor_choice[name][chosen.best_pose_index])])
                 for name, m in chosen.masks.items() if m is not None}
 
+    def proposal_sets(self, frame: Frame) -> dict[str, ProposalSet]:
+        """Per camera of the frame with zero-shot proposals, the backend's proposals in the grasp
+        prior's window (its fixed poses' ROI), made from the image alone (no GrabCut prompt, no
+        belief): what ``likelihood.ProposalLikelihood`` lets each pose choose from. Empty with
+        recorded masks (``topic``) or colour evidence: those are free of the belief already."""
+        if self.observer.recorded or self.cfg.masking.camera_evidence == "colour":
+            return {}
+        out = {}
+        for name, img in frame.cameras.items():
+            roi = self.rois(frame, self.prior_poses, [name])[name]
+            box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
+            found = self.observer.camera_proposals(img, box)
+            if found:
+                out[name] = ProposalSet(roi, np.stack([roi.crop(p) for p in found]))
+        return out
+
     def prior_coverage(self, frame: Frame, name: str, img: SensorImage, occluders: list,
                        margin_px: float = 4.0) -> tuple[Roi, np.ndarray]:
         """The grasp prior's window in camera ``name`` (the ROI of its fixed poses, ``margin_px``
         image pixels around) and the fraction (h, w) of those poses' silhouettes, behind the
         occluders, covering each pixel."""
-        roi = self.rois(frame, self.prompt_poses, [name], margin_px)[name]
-        rendered = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prompt_poses),
+        roi = self.rois(frame, self.prior_poses, [name], margin_px)[name]
+        rendered = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prior_poses),
                                                     img.camera, roi, occluders)
         return roi, belief_probability(rendered, np.ones(len(rendered)))
 

@@ -31,6 +31,8 @@ WARNING_KINDS: dict[str, str] = {
     "suspect_estimate": "in many frames the evidence did not pin the estimate on some axis, or another pose explained "
                         "it as well: it may be far off",
     "rival_mode": "a fresh search found another pose that explains the frame about as well as the estimate",
+    "mode_switch": "with each pose choosing its own camera masks, another pose explained the frame far better: the "
+                   "frame was redone from it",
 }
 
 
@@ -174,6 +176,12 @@ class SensorConsistency:
     max_fraction: float = 0.5
     factors: dict[str, float] = field(default_factory=dict)
     streak: dict[str, int] = field(default_factory=dict)  # every sensor seen: consecutive disagreeing frames
+
+    def reset(self) -> None:
+        """Forget every verdict (factors and streaks): they judged the sensors against an
+        estimate found to be in a wrong mode (``mode_switch``)."""
+        self.factors.clear()
+        self.streak.clear()
 
     def weight_factor(self, name: str) -> float:
         """The factor (1 or ``factor``) applied to sensor ``name``'s weight."""

@@ -68,3 +68,55 @@ def test_an_outvoted_pad_draws_the_estimate_out_of_a_wrong_mode(scene):
     without = _track(log_path, replace(cfg, search=replace(cfg.search, dissent=False)))
     assert all(dw > 10.0 for _, dw, _, _ in without), without
     assert any("sensor_downweighted" in flags for _, _, flags, _ in without)
+
+
+def _steps(log_path, cfg, frames):
+    """The first ``frames`` frames stepped online: per frame (estimate, truth T_ee_object, frame)."""
+    out = []
+    with McapLog(log_path) as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        for frame, _ in zip(reader, range(frames)):
+            out.append((estimator.step(frame), se3.invert(frame.T_world_ee) @ frame.T_world_object_gt, frame))
+    return out, estimator
+
+
+def _errors(r, T_gt):
+    dt = np.linalg.norm(r.T_ee_object[:3, 3] - T_gt[:3, 3]) * 1e3
+    return dt, np.degrees(np.linalg.norm(se3.matrix_to_rotvec(r.T_ee_object[:3, :3] @ T_gt[:3, :3].T)))
+
+
+def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_favour(scene):
+    """With the default camera masks (a GrabCut seeded by the belief, Algorithm 1 choosing with its
+    particles) the wrong mode's masks agree with it: the frame's likelihood rates the wrong
+    estimate above the truth, and the dissent search cannot leave it. Scored with each pose
+    choosing its own mask among the image's proposals (``ProposalLikelihood``) the truth wins;
+    the mode check (at frame 3 here) redoes the frame from that search, and the run stays near
+    the truth. The checks draw from their own generator: the frames before are the same."""
+    from mvtop_cli.estimator.likelihood import ProposalLikelihood
+
+    log_path, cfg = scene
+    cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt="belief"),
+                  search=replace(cfg.search, rival_every=4, mode_check=False))
+    plain, estimator = _steps(log_path, cfg, 4)
+    r, T_gt, frame = plain[3]
+    assert all(_errors(r, T)[1] > 10.0 for r, T, _ in plain)
+    both = np.stack([r.T_ee_object, T_gt])
+    own = estimator.last_likelihood(both)
+    assert own[0] > own[1] + 10.0  # the belief's masks favour the belief
+    free = ProposalLikelihood(estimator.last_likelihood, estimator.observations.proposal_sets(frame))
+    assert free.cameras == ["front", "side"]
+    scored = free(both)
+    assert scored[1] > scored[0] + cfg.search.recheck_margin  # on equal terms the truth wins
+
+    checked, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 8)
+    for (p, _, _), (c, _, _) in zip(plain[:3], checked[:3]):
+        np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
+    switch = [w for w in checked[3][0].warnings if w["kind"] == "mode_switch"]
+    assert len(switch) == 1 and switch[0]["nats_better"] > cfg.search.recheck_margin
+    assert "mode_switch" in checked[3][0].flags
+    errors = np.array([_errors(c, T) for c, T, _ in checked[3:]])
+    assert np.all(errors < [1.0, 2.0]), errors  # from 1.7 mm / 20 deg off
+    assert np.all(errors[-1] < [0.3, 0.5]), errors  # and closing in on the truth
+    assert not any("sensor_downweighted" in c.flags for c, _, _ in checked)  # the left pad keeps its weight
+    assert not any("mode_switch" in c.flags for c, _, _ in checked[4:])  # the check at frame 7 finds nothing better

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mvtop_cli.config import load_config
+from mvtop_cli.config import BackendConfig, load_config
 from mvtop_cli.estimator.observation import Observation, ObservationModel
 from mvtop_cli.estimator.prior import init_from_prior
 from mvtop_cli.estimator.scene import OBJECT_ID, SceneModel
@@ -125,14 +125,25 @@ def test_iou_with_counts_what_lies_outside_the_window_as_not_shared():
     assert obs.iou_with("other", full) == 0.0
 
 
-def test_prior_prompt_poses_are_fixed_by_the_seed():
+def test_prior_poses_are_fixed_by_the_seed():
     cfg = load_config(ROOT / "configs" / "cube.yaml")
-    assert cfg.masking.grabcut_prompt == "belief"  # the default
     prior_cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt="prior", prior_samples=32))
     scene = SceneModel(cfg, build_contact=False)
-    a = ObservationModel(prior_cfg, scene, None).prompt_poses
-    b = ObservationModel(prior_cfg, scene, None).prompt_poses
+    a = ObservationModel(prior_cfg, scene, None).prior_poses
+    b = ObservationModel(prior_cfg, scene, None).prior_poses
     assert a.shape == (32, 4, 4) and np.array_equal(a, b)
     other = replace(prior_cfg, filter=replace(prior_cfg.filter, seed=prior_cfg.filter.seed + 1))
-    assert not np.array_equal(a, ObservationModel(other, scene, None).prompt_poses)
-    assert ObservationModel(cfg, scene, None).prompt_poses is None
+    assert not np.array_equal(a, ObservationModel(other, scene, None).prior_poses)
+    # drawn whatever the GrabCut prompt: they also give the grasp prior's window for the mode check
+    assert ObservationModel(cfg, scene, None).prior_poses.shape == (cfg.masking.prior_samples, 4, 4)
+
+
+def test_the_mode_check_takes_no_proposals_from_evidence_free_of_the_belief():
+    """Recorded masks and colour evidence are made without the belief: the mode check
+    (``search.mode_check``) has nothing to re-choose there, so no proposals are made."""
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    scene = SceneModel(cfg, build_contact=False)
+    recorded = replace(cfg, masking=replace(cfg.masking, camera=BackendConfig("topic")))
+    colour = replace(cfg, masking=replace(cfg.masking, camera_evidence="colour"))
+    for c in (recorded, colour):
+        assert ObservationModel(c, scene, None).proposal_sets(None) == {}
