@@ -338,11 +338,11 @@ class SearchConfig:
         0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
     rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
     mode_check: bool = field(default=True, metadata={
-        "doc": "with camera proposals (not recorded masks or colour evidence), each rival check also searches the "
-               "grasp prior with every pose choosing its own camera mask among the belief-free proposals (Algorithm 2 "
-               "per pose); when that search's best pose lies beyond rival_translation_m / rival_rotation_deg and beats "
-               "the estimate by recheck_margin nats, the belief is in a wrong mode whose own masks agree with it: the "
-               "frame is redone from the searched poses (flag mode_switch)"})
+        "doc": "with touch and camera proposals (not recorded masks or colour evidence), each rival check also "
+               "searches the grasp prior with every pose choosing its own camera mask among the belief-free proposals "
+               "(Algorithm 2 per pose); when that search's best pose lies beyond rival_translation_m / "
+               "rival_rotation_deg and beats the estimate by recheck_margin nats, the belief is in a wrong mode whose "
+               "own masks agree with it: the frame is redone from the searched poses (flag mode_switch)"})
     mode_init_factor: int = field(default=2, metadata=_rng(
         1, 1000, doc="prior samples per particle in the mode check's search (a far better mode is found with fewer "
                      "than the first frame's search needs to place the estimate)"))

@@ -120,3 +120,16 @@ def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_fav
     assert np.all(errors[-1] < [0.3, 0.5]), errors  # and closing in on the truth
     assert not any("sensor_downweighted" in c.flags for c, _, _ in checked)  # the left pad keeps its weight
     assert not any("mode_switch" in c.flags for c, _, _ in checked[4:])  # the check at frame 7 finds nothing better
+
+
+def test_without_touch_the_mode_check_does_not_run(scene):
+    """With cameras and contact alone a pose's free choice among the coarse proposals is not
+    evidence enough to move a belief: the check is skipped, the run is the same with it on."""
+    log_path, cfg = scene
+    cfg = replace(cfg, modalities=("vision", "contact"), masking=replace(cfg.masking, grabcut_prompt="belief"),
+                  search=replace(cfg.search, rival_every=2, mode_check=False))
+    plain, _ = _steps(log_path, cfg, 4)
+    checked, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 4)
+    for (p, _, _), (c, _, _) in zip(plain, checked):
+        np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
+        assert "mode_switch" not in c.flags and c.timings["poses_scored"] == p.timings["poses_scored"]
