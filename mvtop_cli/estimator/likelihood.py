@@ -241,13 +241,14 @@ class Likelihood:
         """IoU of every observed mask with the mask rendered at each pose (N, 4, 4):
         (N, N_T) tactile and (N, N_V) camera tables, in ``observation``'s sensor order."""
         obs = self.observation
-        iou_t = np.empty((len(T_ee_object), len(obs.tactile)))
-        iou_v = np.empty((len(T_ee_object), len(obs.cameras)))
-        for j, n in enumerate(obs.tactile):
-            iou_t[:, j] = self.sensor_iou(n, T_ee_object)
-        for j, n in enumerate(obs.cameras):
-            iou_v[:, j] = self.sensor_iou(n, T_ee_object)
-        return iou_t, iou_v
+        return self.iou_table(obs.tactile, T_ee_object), self.iou_table(obs.cameras, T_ee_object)
+
+    def iou_table(self, names: list[str], T_ee_object: np.ndarray) -> np.ndarray:
+        """IoU (N, len(names)) of the observed sensors ``names`` at each pose (N, 4, 4)."""
+        out = np.empty((len(T_ee_object), len(names)))
+        for j, n in enumerate(names):
+            out[:, j] = self.sensor_iou(n, T_ee_object)
+        return out
 
     def sensor_iou(self, name: str, T_ee_object: np.ndarray) -> np.ndarray:
         """IoU (N,) of observed sensor ``name``'s mask with the mask rendered at each pose
@@ -376,7 +377,5 @@ class ProposalLikelihood:
         """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
         t0 = time.perf_counter()
         L = self.likelihood
-        iou_t = np.empty((len(T_ee_object), len(L.observation.tactile)))
-        for j, name in enumerate(L.observation.tactile):
-            iou_t[:, j] = L.sensor_iou(name, T_ee_object)
+        iou_t = L.iou_table(L.observation.tactile, T_ee_object)
         return L.log_likelihood(T_ee_object, iou_t, self.camera_ious(T_ee_object), self.gamma, self.nu, t0)

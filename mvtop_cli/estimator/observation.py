@@ -304,19 +304,23 @@ class ObservationModel:
             return {}
         out = {}
         for name, img in frame.cameras.items():
-            roi = self.rois(frame, self.prior_poses, [name])[name]
+            roi = self.prior_window(frame, name)
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
             found = self.observer.camera_proposals(img, box)
             if found:
                 out[name] = ProposalSet(roi, np.stack([roi.crop(p) for p in found]))
         return out
 
+    def prior_window(self, frame: Frame, name: str, margin_px: float = 4.0) -> Roi:
+        """The grasp prior's window in camera ``name``: the ROI of its fixed poses with
+        ``margin_px`` image pixels around."""
+        return self.rois(frame, self.prior_poses, [name], margin_px)[name]
+
     def prior_coverage(self, frame: Frame, name: str, img: SensorImage, occluders: list,
                        margin_px: float = 4.0) -> tuple[Roi, np.ndarray]:
-        """The grasp prior's window in camera ``name`` (the ROI of its fixed poses, ``margin_px``
-        image pixels around) and the fraction (h, w) of those poses' silhouettes, behind the
-        occluders, covering each pixel."""
-        roi = self.rois(frame, self.prior_poses, [name], margin_px)[name]
+        """The grasp prior's window in camera ``name`` (``prior_window``) and the fraction (h, w)
+        of those poses' silhouettes, behind the occluders, covering each pixel."""
+        roi = self.prior_window(frame, name, margin_px)
         rendered = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, self.prior_poses),
                                                     img.camera, roi, occluders)
         return roi, belief_probability(rendered, np.ones(len(rendered)))
