@@ -10,7 +10,10 @@ Every frame the estimator (pluggable: any ``PoseEstimator``) returns its estimat
 pose, ``T_world_ee @ T_ee_object_est``, sits over the receptacle's inserted pose: the estimate,
 not the truth, decides where the part goes. After ``align_frames`` frames at the hover height
 (re-aligned every frame), the end effector descends ``descent_step_m`` a frame, straight down
-with the alignment of the last hover frame, towards ``overtravel_m`` below the insertion depth.
+with the alignment of the last hover frame, as a guarded move: until contact stops it, at most
+``overtravel_m`` below where the estimate puts the insertion depth (the receptacle's floor, 0.5 mm
+below the depth, stops a part that is in; the overtravel covers an estimate that is off along
+the approach axis, which would otherwise end the descent in free air short of the depth).
 
 Contact is rigid and geometric, as in ``mvtop simulate``: a motion stops at the first contact
 (python-fcl distance, found by bisection along the motion), so the parts never penetrate;
@@ -70,7 +73,7 @@ class ControllerOptions:
     start_yaw_deg: float = 15.0  # half-width of the uniform start yaw about world z
     hover_height_m: float = 0.004  # leading face above the mouth while aligning
     descent_step_m: float = 0.0015  # commanded descent per frame
-    overtravel_m: float = 0.001  # commanded below the insertion depth (the floor stops the part)
+    overtravel_m: float = 0.005  # the guarded descent's limit below the estimated insertion depth
     stall_fraction: float = 0.2  # in contact, less than this fraction of a step made: stalled
     compliance_m: float = 0.0002  # depth tolerance of success (the module docstring)
 

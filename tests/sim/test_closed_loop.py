@@ -1,5 +1,6 @@
 """Closed-loop insertion with test estimators: the truth inserts every grasp, an estimate off
-by twice the clearance stalls on the rim, a retry after re-estimation succeeds, same seed same run."""
+by twice the clearance stalls on the rim, one off along the approach axis still reaches the
+floor, a retry after re-estimation succeeds, same seed same run."""
 
 from __future__ import annotations
 
@@ -57,6 +58,31 @@ def test_estimate_off_by_twice_the_clearance_fails_the_first_attempt(name):
         assert first.align_error_m == pytest.approx(2.0 * spec.clearance_m, rel=0.05)
         assert not result.success and len(result.attempts) == 3  # the same wrong estimate every retry
         assert [a.index for a in result.attempts] == [1, 2, 3]
+
+
+@pytest.mark.parametrize("name", ["cube", "shaft_peg"])
+def test_estimate_off_along_the_approach_axis_still_reaches_the_floor(name):
+    """An estimate that puts the part 2 mm lower in the grasp than it is (along world z, the
+    approach axis, which does not decide the alignment): the guarded descent goes on until the
+    floor stops the part, and it inserts at the first attempt. A descent limited to 1 mm below
+    the estimated depth ends in free air, 1 mm short of it, believed inserted."""
+    spec, T_world_rec, _ = _scene(name)
+
+    def lower(frame, truth):
+        T_world_object = truth.T_world_object.copy()
+        T_world_object[2, 3] -= 0.002
+        return se3.invert(truth.T_world_ee) @ T_world_object
+
+    for seed in SEEDS:
+        result = _insert(name, seed, lower)
+        assert [a.outcome for a in result.attempts] == ["inserted"] and result.success
+        # stopped by the floor, 0.5 mm below the insertion depth (a tilted part's corner touches it first)
+        assert spec.insertion_depth_m <= result.attempts[0].depth_m <= spec.insertion_depth_m + 0.0005 + 1e-6
+        assert result.states[-1].contact
+        short = _insert(name, seed, lower, ControllerOptions(overtravel_m=0.001))
+        assert [a.outcome for a in short.attempts] == ["believed_inserted"] and not short.success
+        assert short.attempts[0].depth_m == pytest.approx(spec.insertion_depth_m - 0.001, abs=2e-5)
+        assert not short.states[-1].contact
 
 
 def test_retry_with_a_corrected_estimate_inserts():
