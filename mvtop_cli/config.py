@@ -294,7 +294,13 @@ class FilterConfig:
         doc="a frame whose ESS collapsed is redone with max(this, 3 x refine_iterations) stages; 0: only flag it"))
     jump_sigmas: float = field(default=5.0, metadata=_rng(
         0.0, 1000.0, lo_open=True, doc="estimate_jump: a move beyond this many RMS spreads of the predicted belief"))
-    roi_size_px: int = field(default=128, metadata=_rng(16, 1024))
+    roi_size_px: int = field(default=128, metadata=_rng(16, 1024, doc=(
+        "longest side of a camera's scoring window [ROI pixels]: a window whose image extent is longer is "
+        "downsampled k-fold (k = ceil(extent / this)); 256 scores the plug's and shaft peg's windows over a spread "
+        "belief at full resolution: fewer far-off plug estimates, a worse shaft peg median (README: Scoring window)")))
+    tactile_roi_size_px: int = field(default=128, metadata=_rng(16, 1024, doc=(
+        "the same for a tactile sensor's window (a 320 px GelSight pad: k = 3 at 128, 0.17 mm a ROI pixel); 256 "
+        "lifted the plug and lowered conn1 (README: Scoring window)")))
     seed: int = field(default=0, metadata=_rng(0, 2**63 - 1))
     fold_symmetries: bool = field(default=True, metadata={"doc": (
         "summarise the belief modulo object.symmetries and object.continuous_symmetry: each particle is taken "

@@ -207,7 +207,8 @@ class ObservationModel:
             out[name] = roi_for_particles(
                 self.scene.renderer.mesh(OBJECT_ID), frame.T_sensor_object(name, T_ee_object), frame.image(name).camera,
                 "tactile" if tactile else "silhouette", self.gel_distance_m[name] if tactile else None,
-                max_side=self.cfg.filter.roi_size_px, margin_px=margin_px,
+                max_side=self.cfg.filter.tactile_roi_size_px if tactile else self.cfg.filter.roi_size_px,
+                margin_px=margin_px,
             )
         return out
 

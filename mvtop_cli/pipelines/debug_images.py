@@ -6,7 +6,7 @@ compared (``estimator.likelihood``): the observed mask cropped to the sensor's R
 frame's estimate (``Likelihood.rendered_masks``), both bit-packed, with the ROI, the
 sensor's intrinsics and its pose in ``world``. They are kept in the checkpoint journal with
 the frame's estimate (``FrameEstimate.debug_masks``; at most 2 x 128 x 128 / 8 = 4 KiB per
-sensor and frame with the default ``filter.roi_size_px``), never in memory, so long logs
+sensor and frame with the default window bounds), never in memory, so long logs
 cost disk, not RAM, and a resumed run still has the images of the frames done before.
 
 ``write_debug_images`` then writes, at each frame's stamp and in the sensor's TF frame:

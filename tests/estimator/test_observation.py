@@ -147,3 +147,31 @@ def test_the_mode_check_takes_no_proposals_from_evidence_free_of_the_belief():
     colour = replace(cfg, masking=replace(cfg.masking, camera_evidence="colour"))
     for c in (recorded, colour):
         assert ObservationModel(c, scene, None).proposal_sets(None) == {}
+
+
+@pytest.mark.parametrize("camera_side, tactile_side", [(256, 128), (96, 200)])
+def test_cameras_and_tactile_sensors_have_their_own_window_size(camera_side, tactile_side):
+    """``filter.roi_size_px`` bounds the camera windows, ``filter.tactile_roi_size_px`` the
+    tactile ones: on the plug's contact frame over a belief 3 mm / 10 deg wide, each window's
+    ROI image has its longest side within its own bound and is downsampled by the smallest
+    whole factor that fits it."""
+    cfg = load_config(ROOT / "configs" / "plug.yaml")
+    cfg = replace(cfg, filter=replace(cfg.filter, roi_size_px=camera_side, tactile_roi_size_px=tactile_side))
+    scene = SceneModel(cfg, build_contact=False)
+    with McapLog(ROOT / "sample_logs" / "plug.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        model = ObservationModel(cfg, scene, lambda fr, t: reader.tf.lookup(cfg.frames.world, fr, t))
+        frame = next(f for f in reader if f.index == FRAMES[1])
+        T_gt = np.linalg.inv(frame.T_world_ee) @ frame.T_world_object_gt
+        belief = init_from_prior(T_gt, 3e-3, np.radians(10.0), 300, np.random.default_rng(1)).poses
+        rois = model.rois(frame, belief)
+    assert set(rois) == set(frame.cameras) | set(frame.tactile)
+    for name, roi in rois.items():
+        bound = tactile_side if name in frame.tactile else camera_side
+        k = round(1.0 / roi.scale)
+        assert max(roi.shape) <= bound, (name, roi)
+        assert k == max(1, -(-max(roi.width, roi.height) // bound)), (name, roi)
+    # the bounds bite: the tactile pads' 320 px windows are downsampled at 128 and 200, the
+    # cameras' windows over this wide belief at 96
+    assert all(rois[n].scale < 1.0 for n in frame.tactile)
+    assert all((rois[n].scale < 1.0) == (camera_side == 96) for n in frame.cameras)
