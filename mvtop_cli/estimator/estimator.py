@@ -462,7 +462,8 @@ class Estimator:
             return result
         best = poses[int(np.argmax(ll))]
         cur = result.particles.poses
-        ref = cur[int(np.argmax(likelihood(cur)))]
+        ll_cur = result.log_likelihoods if result.log_likelihoods is not None else likelihood(cur)
+        ref = cur[int(np.argmax(ll_cur))]
         cmp = likelihood(np.stack([result.estimate, ref, best]))
         if cmp[2] - max(cmp[0], cmp[1]) <= s.recheck_margin:
             return result

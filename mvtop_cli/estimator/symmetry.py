@@ -73,12 +73,13 @@ class SymmetryFold:
         T = np.asarray(poses, dtype=np.float64)
         R_ref = np.asarray(reference, dtype=np.float64)[:3, :3]
         G = self.group
-        # M_k = R_ref^T R G_k for every pose and group element: (N, m, 3, 3)
-        M = np.einsum("ji,njk,mkl->nmil", R_ref, T[:, :3, :3], G[:, :3, :3])
-        if not self.continuous:
-            score, theta = np.einsum("nmii->nm", M), None
+        # A = R_ref^T R per pose (N, 3, 3); M_k = A G_k. Two matrix products: a three-operand
+        # einsum here is an unblocked loop and was the costliest step of a symmetric part's frame.
+        A = R_ref.T @ T[:, :3, :3]
+        if not self.continuous:  # trace(A G_k) = sum_ij A_ij (G_k)_ji, without forming M
+            score, theta = np.einsum("nij,mji->nm", A, G[:, :3, :3]), None
         else:
-            theta, score = se3.best_turn_about_axis(M, self.axis)
+            theta, score = se3.best_turn_about_axis(A[:, None] @ G[None, :, :3, :3], self.axis)
         # ties (and rounding-level differences) go to the lowest index: the identity first
         k = np.argmax(score >= score.max(axis=1, keepdims=True) - 1e-12, axis=1)
         if not self.continuous:

@@ -75,6 +75,9 @@ class StepResult:
       ``ParticleFilter``'s ``collapse_retry_iterations``) adds ``collapse_retry``: the
       iterations of the redo, ``min_ess_before`` and ``recovered`` (the redo's ESS stayed
       above the threshold).
+    log_likelihoods : (N,) float or None
+      The valid log-likelihoods of ``particles`` under this frame's model, where the update
+      computed them (``refine``: its final particles'); None otherwise.
     """
 
     particles: ParticleSet
@@ -84,6 +87,7 @@ class StepResult:
     resampled: bool
     log_evidence: float
     diagnostics: dict = field(default_factory=dict)
+    log_likelihoods: np.ndarray | None = None
 
     @property
     def flags(self) -> tuple[str, ...]:

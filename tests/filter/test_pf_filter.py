@@ -108,6 +108,21 @@ def test_refine_matches_the_analytic_gaussian_posterior():
     assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
 
 
+def test_refine_hands_back_the_log_likelihoods_of_its_particles():
+    """The refined particles carry the log-likelihoods the sampler computed for them, equal
+    to a fresh evaluation (the estimator's re-search check reads them instead of scoring
+    the particles again); the plain update computes none for its resampled set."""
+    T_true = _random_grasp(np.random.default_rng(7))
+    log_likelihood = _iou_like(T_true)
+    rng = np.random.default_rng(3)
+    prior = init_uniform_box(T_NOMINAL, 3e-3, np.deg2rad(10.0), 300, rng)
+    pf = ParticleFilter(STILL, "systematic", 0.5, rng)
+    result = pf.refine(prior, log_likelihood, iterations=4)
+    np.testing.assert_array_equal(result.log_likelihoods, log_likelihood(result.particles.poses))
+    assert len(np.unique(result.log_likelihoods)) > 100  # moved particles, not copies of a few
+    assert pf.update(prior, log_likelihood).log_likelihoods is None
+
+
 def test_refine_with_a_flat_likelihood_keeps_the_prior():
     rng = np.random.default_rng(2)
     prior = init_from_prior(T_NOMINAL, 1e-3, np.deg2rad(3.0), 1000, rng)
