@@ -403,7 +403,7 @@ class TemperedRefinement:
             proposal_scale=float(scale),
         )
         finish(diagnostics, flags)
-        return StepResult(out, spread.mean, spread, ess, True, log_evidence, diagnostics, state.log_lik)
+        return StepResult(out, spread.mean, spread, ess, True, log_evidence, diagnostics, log_likelihoods=state.log_lik)
 
 
 def check_shrink(shrink: float) -> None:
