@@ -870,6 +870,10 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 @click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
               help="Descents per grasp: after a stalled one the robot backs off, re-aligns and retries.")
 @benchmark_scene_option()
+@click.option("--recorded-masks-px", "recorded_masks_px", type=click.IntRange(0, 20), default=None,
+              help="Simulate a segmenter node on the robot (the paper's supervised setting): each camera image's "
+                   "object mask is recorded with it, its outline off by up to this many pixels (0: exact), and the "
+                   "estimator reads it (masking backend topic). Default: masks made from the images.")
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--keep-logs", is_flag=True, help="Write every attempt as an MCAP log (OUT/runs/RUN/logs/).")
@@ -879,9 +883,9 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
               "finished; make no new run.")
 @benchmark_ray_option()
 def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                            first_seed: int, methods: str, attempts: int, scene: str, particles: int | None,
-                            workers: int, keep_logs: bool, import_results: Path | None, summary_only: bool,
-                            ray_address: str | None) -> None:
+                            first_seed: int, methods: str, attempts: int, scene: str, recorded_masks_px: int | None,
+                            particles: int | None, workers: int, keep_logs: bool, import_results: Path | None,
+                            summary_only: bool, ray_address: str | None) -> None:
     """The paper's Table I in closed loop: every object x grasp x method is inserted in the
     simulator, the robot aligning the estimated object pose with the receptacle and retrying
     after a stalled descent; prints the success rates (per object and method, and their
@@ -895,7 +899,8 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
                                         attempts=attempts,
                                         particles=particles, workers=workers, object_files=files,
                                         keep_logs=keep_logs, import_results=import_results,
-                                        summary_only=summary_only, ray=ray_address, scene=scene)
+                                        summary_only=summary_only, ray=ray_address, scene=scene,
+                                        recorded_masks_px=recorded_masks_px)
     with _progress("benchmark insertion") as update:
         summary = run_insertion_benchmark(out_dir, options, progress=update)
     click.echo(format_table(summary))

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -67,13 +67,18 @@ class InsertionBenchmarkOptions:
     summary_only: bool = False  # tables over the finished runs; no run is made
     ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
     scene: str = "default"  # simulated camera scene: default, or hard (pipelines.simulate.HARD_SCENE)
+    # None: camera masks made from the images (the config's classical backend); N: a segmenter
+    # node's masks recorded with the images, outlines off by up to N px (``topic`` backend)
+    recorded_masks_px: int | None = None
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | None, attempts: int, keep_logs: bool,
-             threads: int, source: str | None = None, scene_name: str = "default") -> dict:
+             threads: int, source: str | None = None, scene_name: str = "default",
+             recorded_masks_px: int | None = None) -> dict:
     """One grasp in closed loop with one method; writes and returns its report. ``source``:
     the object file of ``obj`` (default: the built-in object of that name); ``scene_name`` the
-    simulated camera scene (``default`` or ``hard``)."""
+    simulated camera scene (``default`` or ``hard``); ``recorded_masks_px`` as
+    ``InsertionBenchmarkOptions``."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.insertion import InsertionOptions, insert, method_config
@@ -81,19 +86,22 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
     from ..sim.closed_loop import ControllerOptions
 
     run = Path(run_dir)
+    sensors = scene_options(SimulateOptions(), scene_name)
+    if recorded_masks_px is not None:
+        sensors = replace(sensors, mask_topics=True, mask_error_px=recorded_masks_px)
     cfg_path = run.parent.parent / "scenes" / obj / "config.yaml"
     if not cfg_path.exists():  # two workers may both write it: the same bytes, written atomically
-        write_scene_config(source or obj, cfg_path)
+        write_scene_config(source or obj, cfg_path, sensors)
     cfg = method_config(load_config(cfg_path), MODALITY_SETS[method], particles, seed)
-    options = InsertionOptions(sensors=scene_options(SimulateOptions(), scene_name),
-                               controller=ControllerOptions(attempts=attempts))
+    options = InsertionOptions(sensors=sensors, controller=ControllerOptions(attempts=attempts))
     t0, c0 = time.perf_counter(), time.process_time()
     result = insert(source or obj, seed, cfg, options, log_dir=run / "logs" if keep_logs else None)
     report = {
         "schema": SCHEMA,
         "benchmark": {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                       "cpu_seconds": time.process_time() - c0, "particles": cfg.filter.num_particles,
-                      "attempts_allowed": attempts, "code": code_fingerprint(), **scene_record(scene_name)},
+                      "attempts_allowed": attempts, "code": code_fingerprint(), **scene_record(scene_name),
+                      **({} if recorded_masks_px is None else {"recorded_masks_px": recorded_masks_px})},
         "insertion": {
             "success": result.success, "attempts": len(result.attempts), "frames": result.frames,
             "rate_hz": result.rate_hz, "time_to_insert_s": result.time_to_insert_s,
@@ -130,18 +138,24 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     if stale:
         raise MvtopError(f"{out_dir}: its runs were made with --attempts {stale[0]}, not {options.attempts} "
                          "(use that, or another --out)")
+    masks = {r["benchmark"].get("recorded_masks_px") for r in reports.values()} - {options.recorded_masks_px}
+    if masks:
+        raise MvtopError(f"{out_dir}: its runs were made with {_masks_setting(masks.pop())}, not "
+                         f"{_masks_setting(options.recorded_masks_px)} (one setting per benchmark folder: give "
+                         "another --out)")
     files = dict(options.object_files)
 
     def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
         o, s, m = key
         return (o, s, m, str(run_dir), options.particles, options.attempts, options.keep_logs, threads, files.get(o),
-                options.scene)
+                options.scene, options.recorded_masks_px)
 
     seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
-               "attempts": options.attempts, "scene": options.scene, "seconds_this_run": round(seconds, 1),
+               "attempts": options.attempts, "scene": options.scene, "recorded_masks_px": options.recorded_masks_px,
+               "seconds_this_run": round(seconds, 1),
                "runs": len(reports), "runs_requested": len(jobs), "imported_this_run": imported,
                "totals": totals(out_dir, reports), "table": {}}
     for method in options.methods:
@@ -155,6 +169,17 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     with atomic_output(out_dir / "summary.md", "w") as fh:
         fh.write(format_table(summary))
     return summary
+
+
+def _masks_setting(px: int | None) -> str:
+    return "camera masks made from the images" if px is None else f"--recorded-masks-px {px}"
+
+
+def _recorded_masks_note(px: int | None) -> str:
+    if px is None:
+        return ""
+    outline = "exact" if px == 0 else f"outlines off by up to {px} px"
+    return f", camera masks recorded by a simulated segmenter ({outline})"
 
 
 def read_results(path: Path) -> list[dict]:
@@ -200,7 +225,8 @@ def format_table(summary: dict) -> str:
     done = summary["runs"] == summary["runs_requested"]
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs ({summary['poses']} grasps per object x "
              f"{len(objs)} objects x {len(summary['methods'])} methods, up to {summary['attempts']} attempts"
-             f"{'' if summary.get('scene', 'default') == 'default' else ', ' + summary['scene'] + ' scene'})"
+             f"{'' if summary.get('scene', 'default') == 'default' else ', ' + summary['scene'] + ' scene'}"
+             f"{_recorded_masks_note(summary.get('recorded_masks_px'))})"
              f"{'' if done else ': not complete'}; code {codes}.", ""]
 
     def table(title: str, cell: Callable[[dict], float | None], fmt: str, average: bool) -> None:

@@ -15,9 +15,11 @@ Candidates are ranked by the mean gradient along their outline over (1 + the mea
 inside), discounted by the share of the outline on the window border (a part stands out
 and is smooth inside; background runs out of the window). The best ones are also joined
 pairwise when disjoint, close and alike in median colour (pieces of a part split by an
-occluder of the part's own colour). Holes up to ``max_hole_fraction`` of a region (a
-specular highlight) are filled; proposals with IoU > ``merge_iou`` are merged and at most
-``max_proposals`` kept. All of it runs on the window downsampled to ``work_max_side_px``.
+occluder of the part's own colour), and, opt-in (``adjacent_contact_px``), when they touch
+whatever their colours (the faces of one part lit differently). Holes up to
+``max_hole_fraction`` of a region (a specular highlight) are filled; proposals with IoU >
+``merge_iou`` are merged and at most ``max_proposals`` kept. All of it runs on the window
+downsampled to ``work_max_side_px``.
 
 Promptable mode (:meth:`ClassicalCameraBackend.prompt`), for when the pose belief has
 converged, refines the CAD silhouette rendered at the current estimate with GrabCut.
@@ -81,6 +83,9 @@ class ClassicalOptions:
     union_pool, union_colour_tolerance : the best ``union_pool`` regions are also proposed
         pairwise as one mask when disjoint, at most ``bridge_gap_px`` apart and within
         this CIE76 distance [Lab units] in mean colour (pieces split by an occluder)
+    adjacent_contact_px : the best ``union_pool`` regions are also proposed pairwise as one
+        mask when they touch along at least this many work-resolution pixels, whatever their
+        colours (the faces of one part lit differently); 0 (default): not proposed
     merge_iou : proposals overlapping more than this are merged (the better-ranked kept)
     max_proposals : at most this many proposals are returned
 
@@ -113,6 +118,7 @@ class ClassicalOptions:
     max_hole_fraction: float = 0.25
     union_pool: int = 16
     union_colour_tolerance: float = 20.0
+    adjacent_contact_px: int = 0
     merge_iou: float = 0.9
     max_proposals: int = 30
     prompt_erode_px: int = 5
@@ -137,6 +143,7 @@ class ClassicalOptions:
             "max_proposals": self.max_proposals >= 1,
             "union_pool": self.union_pool >= 0,
             "union_colour_tolerance": self.union_colour_tolerance >= 0,
+            "adjacent_contact_px": self.adjacent_contact_px >= 0,
             "prompt_erode_px": self.prompt_erode_px >= 0,
             "prompt_ring_px": self.prompt_ring_px >= 1,
             "prompt_max_side_px": self.prompt_max_side_px >= 16,
@@ -601,7 +608,7 @@ class ClassicalCameraBackend:
         order = np.argsort(-scores, kind="stable")
         top = [int(order[i]) for i in _dedup([masks[i] for i in order], o.merge_iou, o.max_proposals)]
         pool = [masks[i] for i in top[: o.union_pool]]
-        extra = self._occluder_unions(window, pool)
+        extra = self._occluder_unions(window, pool) + self._adjacent_unions(window, pool)
         masks = [masks[i] for i in top] + extra
         scores = np.concatenate([scores[top], self._rank(window, extra)])
         order = np.argsort(-scores, kind="stable")
@@ -650,6 +657,29 @@ class ClassicalCameraBackend:
                 grown[i] = cv2.dilate(masks[i], kernel)
             if cv2.countNonZero(grown[i] & masks[j]):
                 out.append(masks[i] | masks[j])
+        return out
+
+    def _adjacent_unions(self, window: _Window, masks: list[np.ndarray]) -> list[np.ndarray]:
+        """Unions of two regions that touch along at least ``adjacent_contact_px`` pixels
+        (8-connected) and barely overlap, whatever their colours: the faces of one part lit
+        differently, which colour, watershed and edges all split (a plug's bright front and
+        shaded side face, on its frame 0: the best single proposal covered half the part, IoU
+        0.48-0.51 with its silhouette, the union 0.86-0.94). Which union is the part is left
+        to the poses that choose among the proposals (Algorithm 1-2)."""
+        o = self.options
+        if o.adjacent_contact_px <= 0 or len(masks) < 2:
+            return []
+        areas = [cv2.countNonZero(m) for m in masks]
+        grown = [cv2.dilate(m, _SQUARE3) for m in masks]
+        out = []
+        for i in range(len(masks)):
+            for j in range(i + 1, len(masks)):
+                if areas[i] + areas[j] > window.max_area:
+                    continue
+                if cv2.countNonZero(masks[i] & masks[j]) > 0.05 * min(areas[i], areas[j]):
+                    continue  # nested or overlapping: another segmentation of the same region
+                if cv2.countNonZero(grown[i] & masks[j]) >= o.adjacent_contact_px:
+                    out.append(masks[i] | masks[j])
         return out
 
     # -- promptable mode -----------------------------------------------------------------

@@ -4,8 +4,9 @@
 ``mvtop simulate`` renders it (``simulate.SensorRig``: two cameras, two GelSight-like tactile
 sensors, their noise and compression) and handed to ``Estimator.step`` as the ``records.Frame``
 that reading the log back would give (the images encoded as the log stores them and decoded
-again, the tactile depth, the sensor and end-effector poses, the contact flag; no ground
-truth). The frames are made one at a time, since where the robot moves next depends on the
+again, the tactile depth, the sensor and end-effector poses, the contact flag, and with
+``SimulateOptions.mask_topics`` each camera's recorded object mask as a segmenter node would
+publish it; no ground truth). The frames are made one at a time, since where the robot moves next depends on the
 estimate. With ``log_dir`` every attempt is also written as an MCAP log
 (``attempt_<n>.mcap``, with ground truth) that ``mvtop estimate`` and ``mvtop eval`` read with
 the scene's config.
@@ -22,7 +23,7 @@ import numpy as np
 
 from ..config import Config
 from ..estimator import Estimator
-from ..io.images import decode_compressed, encode_compressed
+from ..io.images import decode_compressed, decode_mask, encode_compressed, encode_mask_png, encode_raw
 from ..io.mcap_writer import LogWriter
 from ..records import Frame, SensorImage
 from ..sim import gripper as grip
@@ -104,6 +105,14 @@ class _FrameRecorder:
             self.log.write_depth(topic, depth_m, stamp_ns, frame_id)
         self._slot(topic)["depth"] = np.asarray(depth_m, dtype=np.float32)
 
+    def write_mask(self, topic, labels, stamp_ns, frame_id, *, fmt):
+        if self.log is not None:
+            self.log.write_mask(topic, labels, stamp_ns, frame_id, fmt=fmt)
+        labels = np.asarray(labels)
+        fields = (encode_mask_png(labels) if fmt == "png"
+                  else encode_raw(labels, "mono8" if labels.dtype == np.uint8 else "mono16"))
+        self._slot(topic)["mask"] = decode_mask(SimpleNamespace(**fields), topic)
+
     def write_camera_info(self, topic, camera, stamp_ns, frame_id):
         if self.log is not None:
             self.log.write_camera_info(topic, camera, stamp_ns, frame_id)
@@ -118,7 +127,8 @@ class _FrameRecorder:
                 T = cams[name]
             else:
                 T = self.T_world_ee @ fingers[name] @ self.rig.T_finger_tac
-            img = SensorImage(name, s["stamp_ns"], s["image"], s["camera"], T, s.get("depth"), self.T_world_ee)
+            img = SensorImage(name, s["stamp_ns"], s["image"], s["camera"], T, s.get("depth"), self.T_world_ee,
+                              s.get("mask"))
             (cameras if s["kind"] == "cameras" else tactile)[name] = img
         return cameras, tactile
 
@@ -127,9 +137,10 @@ class _Sensors:
     """The ``Observe`` of ``run_insertion``: renders each state's frame with the rig, writes
     it to the current attempt's log when ``log_dir`` is given."""
 
-    def __init__(self, rig: SensorRig, options: SimulateOptions, cam_rng, tac_rng, light_rng,
+    def __init__(self, rig: SensorRig, options: SimulateOptions, cam_rng, tac_rng, light_rng, mask_rng,
                  states: dict[int, EpisodeState], log_dir: Path | None):
         self.rig, self.options, self.cam_rng, self.tac_rng, self.light_rng = rig, options, cam_rng, tac_rng, light_rng
+        self.mask_rng = mask_rng
         self.states = states
         self.log_dir = log_dir
         self.log: LogWriter | None = None
@@ -150,7 +161,7 @@ class _Sensors:
         rec = _FrameRecorder(self.log, self.rig, state.T_world_ee, state.finger_opening_m)
         capture = {name: state.stamp_ns for name in ("front", "side", *TACTILE_SIDES)}
         write_images(rec, state, capture, [state], self.rig, self.options, self.cam_rng, self.tac_rng,
-                     light_rng=self.light_rng)
+                     self.mask_rng, self.light_rng)
         cameras, tactile = rec.sensor_images()
         return Frame(index=index, stamp_ns=state.stamp_ns, T_world_ee=state.T_world_ee, cameras=cameras,
                      tactile=tactile, contact=bool(state.contact), finger_opening_m=state.finger_opening_m)
@@ -174,21 +185,21 @@ def insert(object_name: str, seed: int, cfg: Config | None, options: InsertionOp
     sim = options.sensors
     if sim.timing.jitter_s or sim.timing.drop_fraction or sim.timing.camera_every != 1:
         raise ValueError("closed-loop insertion renders every sensor at every frame (default SensorTiming)")
-    if sim.mask_topics:
-        raise ValueError("closed-loop insertion records no mask topics")
     rng = np.random.default_rng(seed)
     ep_rng, cam_rng, tac_rng, scene_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=4))
-    # drawn as ``simulate`` draws them (its timing and mask generators unused here): a hard
-    # scene (``simulate.scene_options``) has the clutter of ``mvtop simulate``'s with the same seed
+    # drawn as ``simulate`` draws them (its timing generator unused here): a hard scene
+    # (``simulate.scene_options``) has the clutter of ``mvtop simulate``'s with the same seed, and
+    # recorded masks (``SimulateOptions.mask_topics``) are degraded by the same generator
     rng.integers(0, 2**63)
-    _, light_rng, clutter_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=3))
+    mask_rng, light_rng, clutter_rng = (np.random.default_rng(s) for s in rng.integers(0, 2**63, size=3))
     T_world_rec = receptacle_pose(spec.receptacle_mesh)
     collider = Collider(spec.mesh, [(spec.receptacle_mesh, T_world_rec), (board_mesh(), np.eye(4))])
     states: dict[int, EpisodeState] = {}
     if log_dir is not None:
         Path(log_dir).mkdir(parents=True, exist_ok=True)
     rig = SensorRig.build(spec, T_world_rec, sim, scene_rng, tac_rng, clutter_rng)
-    sensors = _Sensors(rig, sim, cam_rng, tac_rng, light_rng, states, None if log_dir is None else Path(log_dir))
+    sensors = _Sensors(rig, sim, cam_rng, tac_rng, light_rng, mask_rng, states,
+                       None if log_dir is None else Path(log_dir))
     try:
         est = estimator if estimator is not None else filter_estimator(cfg, states)
         return run_insertion(T_world_rec, spec.insertion_depth_m, spec.grasp, spec.mesh, collider, sim.episode,

@@ -1,5 +1,6 @@
-"""``mvtop benchmark insertion --scene``: one simulated camera scene per benchmark folder, as
-for ``benchmark accuracy`` (the check is ``benchmarks.runs.check_scene``, shared by both)."""
+"""``mvtop benchmark insertion --scene`` and ``--recorded-masks-px``: one simulated camera scene
+and one source of camera masks per benchmark folder, as for ``benchmark accuracy`` (the scene
+check is ``benchmarks.runs.check_scene``, shared by both)."""
 
 from __future__ import annotations
 
@@ -11,19 +12,26 @@ from mvtop_cli.benchmarks.insertion import InsertionBenchmarkOptions, format_tab
 from mvtop_cli.errors import MvtopError
 
 
+def _refused(folder, made_with: dict, **asked) -> str:
+    """The error of a benchmark asked with ``asked`` options in ``folder``, which holds one
+    finished cube M-TOP run whose ``benchmark`` record adds ``made_with``; checks that nothing
+    was written."""
+    run = folder / "runs" / "cube_1000_M-TOP"
+    run.mkdir(parents=True)
+    bench = {"object": "cube", "seed": 1000, "method": "M-TOP", "attempts_allowed": 3, **made_with}
+    (run / "result.json").write_text(json.dumps({"benchmark": bench}))
+    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",), **asked)
+    with pytest.raises(MvtopError) as info:
+        run_insertion_benchmark(folder, options)
+    assert sorted(p.name for p in folder.iterdir()) == ["runs"]  # nothing written
+    return str(info.value)
+
+
 @pytest.mark.parametrize("made_in, asked", [(None, "hard"), ("hard", "default")])
 def test_a_folder_of_another_scene_is_refused_before_any_run(tmp_path, made_in, asked):
-    run = tmp_path / "runs" / "cube_1000_M-TOP"
-    run.mkdir(parents=True)
-    bench = {"object": "cube", "seed": 1000, "method": "M-TOP", "attempts_allowed": 3,
-             **({"scene": made_in} if made_in else {})}
-    (run / "result.json").write_text(json.dumps({"benchmark": bench}))
-    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",), scene=asked)
-    with pytest.raises(MvtopError) as info:
-        run_insertion_benchmark(tmp_path, options)
-    assert str(info.value) == (f"{tmp_path}: holds runs of the {made_in or 'default'!r} scene, not {asked!r} "
-                               "(expected one scene per benchmark folder: give another --out)")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # nothing written
+    message = _refused(tmp_path, {"scene": made_in} if made_in else {}, scene=asked)
+    assert message == (f"{tmp_path}: holds runs of the {made_in or 'default'!r} scene, not {asked!r} "
+                       "(expected one scene per benchmark folder: give another --out)")
 
 
 def test_the_summary_names_a_hard_scene(tmp_path):
@@ -47,3 +55,23 @@ def test_the_summary_names_a_hard_scene(tmp_path):
     assert (tmp_path / "summary.md").read_text() == format_table(summary)
     default = format_table({**summary, "scene": "default"}).splitlines()[0]
     assert default == "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts); code abc (1 runs)."
+
+
+@pytest.mark.parametrize("made_with, asked, message", [
+    (None, 1, "camera masks made from the images, not --recorded-masks-px 1"),
+    (0, None, "--recorded-masks-px 0, not camera masks made from the images"),
+    (0, 2, "--recorded-masks-px 0, not --recorded-masks-px 2"),
+])
+def test_a_folder_of_other_camera_masks_is_refused_before_any_run(tmp_path, made_with, asked, message):
+    made = {} if made_with is None else {"recorded_masks_px": made_with}
+    assert _refused(tmp_path, made, recorded_masks_px=asked) == (
+        f"{tmp_path}: its runs were made with {message} (one setting per benchmark folder: give another --out)")
+
+
+def test_the_summary_names_recorded_masks():
+    summary = {"objects": ["cube"], "poses": 1, "methods": ["M-VTOP"], "attempts": 3, "scene": "default",
+               "recorded_masks_px": 1, "runs": 1, "runs_requested": 1, "totals": {"code_versions": {"abc": 1}},
+               "table": {}}
+    assert format_table(summary).splitlines()[0] == (
+        "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts, camera masks recorded by a "
+        "simulated segmenter (outlines off by up to 1 px)); code abc (1 runs).")

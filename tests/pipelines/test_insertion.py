@@ -114,3 +114,31 @@ def test_a_hard_scene_changes_the_camera_images_not_the_motion():
         for cam in ("front", "side"):
             diff = np.abs(fa.image(cam).image.astype(np.int16) - fb.image(cam).image.astype(np.int16))
             assert diff.mean() > 20.0  # shadows, clutter, glossy plastic and changing lights [DN]
+
+
+@pytest.mark.parametrize("fmt", ["raw", "png"])
+def test_recorded_masks_reach_the_estimator_as_the_kept_log_holds_them(tmp_path, fmt):
+    """With a simulated segmenter (``SimulateOptions.mask_topics``) each camera frame carries its
+    recorded object mask, the one the kept log gives back through the scene's ``mask_topic``."""
+    sensors = replace(SMALL.sensors, mask_topics=True, mask_format=fmt)
+    cfg = load_config(write_scene_config("conn2", tmp_path / "scene" / "config.yaml", sensors))
+    assert cfg.masking.camera.backend == "topic"
+    seen = []
+    truth = ground_truth_estimator()
+
+    def estimate(frame, state):
+        seen.append(frame)
+        return truth(frame, state)
+
+    opts = InsertionOptions(sensors=sensors, controller=ControllerOptions(attempts=1))
+    result = insert("conn2", 3, None, opts, log_dir=tmp_path / "logs", estimator=estimate)
+    assert result.success and len(seen) == result.frames
+    with McapLog(tmp_path / "logs" / "attempt_1.mcap") as log:
+        frames = list(FrameReader(log, sensor_topics(cfg), log_topics(cfg)))
+    assert len(frames) == len(seen)
+    for got, fed in zip(frames, seen):
+        for cam in ("front", "side"):
+            mask = fed.image(cam).mask
+            assert mask is not None and mask.dtype == np.uint16 and mask.shape == (240, 320)
+            assert np.array_equal(mask, got.image(cam).mask)
+    assert all(np.count_nonzero(f.image("front").mask) > 50 for f in seen)  # the part is in view
