@@ -6,8 +6,8 @@ sensors, their noise and compression) and handed to ``Estimator.step`` as the ``
 that reading the log back would give (the images encoded as the log stores them and decoded
 again, the tactile depth, the sensor and end-effector poses, the contact flag, and with
 ``SimulateOptions.mask_topics`` each camera's recorded object mask as a segmenter node would
-publish it; no ground truth). The frames are made one at a time, since where the robot moves next depends on the
-estimate. With ``log_dir`` every attempt is also written as an MCAP log
+publish it; no ground truth). The frames are made one at a time, since where the robot moves
+next depends on the estimate. With ``log_dir`` every attempt is also written as an MCAP log
 (``attempt_<n>.mcap``, with ground truth) that ``mvtop estimate`` and ``mvtop eval`` read with
 the scene's config.
 """
