@@ -254,6 +254,17 @@ class MaskingConfig:
         0, 64, doc="the belief's GrabCut proposal leaves at least this many ROI pixels on either side of the "
                    "belief's outline to the image's colours and edges (0: only where the likely poses disagree, "
                    "so a tight belief draws its own outline)"))
+    contact_exclusion_m: float | None = field(default=None, metadata=_rng(
+        0.0, 0.05, doc="camera pixels that show a world-fixed colliding environment surface (the receptacle) within "
+                       "this distance [m] of the box the grasp prior spans carry no evidence: left out of the "
+                       "observed masks and of every pose's render (where the part rests on a surface of its own "
+                       "colour no outline separates them), in frames where that surface shows the part's colours "
+                       "(contact_exclusion_overlap); null: every pixel counts"))
+    contact_exclusion_overlap: float = field(default=0.55, metadata=_rng(
+        0.0, 1.0, doc="with contact_exclusion_m: the Bhattacharyya coefficient of the colour histograms "
+                      "(colour_bins) of the part (pixels every fixed grasp-prior pose covers) and of the surface "
+                      "beside it (the excluded pixels no prior pose covers) from which that surface counts as "
+                      "showing the part's colours"))
     converged_translation_m: float = field(default=0.0005, metadata=_rng(
         0.0, 0.1, doc="with prompt_when_converged: the belief's RMS translation spread below which it counts "
                       "as converged"))

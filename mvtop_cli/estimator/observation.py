@@ -29,10 +29,12 @@ from ..errors import ConfigError
 from ..filter.particles import ParticleSet
 from ..masking.base import MaskContext, get_backend
 from ..masking.belief import belief_probability, grabcut_from_belief
-from ..masking.colour import object_probability
+from ..masking.colour import SURE_BACKGROUND, SURE_OBJECT, histogram_overlap, object_probability
 from ..masking.selection import select_masks
 from ..records import Frame, SensorImage
+from ..render.base import PIXEL_OCCLUDER
 from ..render.roi import Roi, roi_for_particles
+from .contact_pixels import prior_box, surface_pixels_in_box
 from .edges import EdgeImage
 from .prior import GraspPriorModel
 from .scene import OBJECT_ID, SceneModel
@@ -196,6 +198,7 @@ class ObservationModel:
         # with grabcut_prompt: prior; their own generator, so the filter's draws are the same either way
         self.prior_poses = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sample(
             m.prior_samples, np.random.default_rng(cfg.filter.seed)).poses
+        self._contact_pixels: dict[tuple, np.ndarray | None] = {}
 
     def rois(self, frame: Frame, T_ee_object: np.ndarray, sensors=None, margin_px: float = 4.0) -> dict[str, Roi]:
         """Per sensor of the frame (or of ``sensors``), the ROI window that holds the object at
@@ -216,12 +219,73 @@ class ObservationModel:
         """The environment meshes ``(mesh_id, T_sensor_mesh)`` in front of camera image ``img``."""
         return self.scene.occluders(img.T_world_sensor, lambda fr: self.frame_pose(fr, img.stamp_ns))
 
+    def camera_occluders(self, frame: Frame, name: str) -> list:
+        """What hides the part from camera ``name`` in this frame: the environment meshes
+        (``occluders``), plus with ``masking.contact_exclusion_m`` the pixels of the surfaces it
+        may touch (``contact_pixels``) as a pixel occluder."""
+        img = frame.cameras[name]
+        occ = self.occluders(img)
+        excluded = self.contact_pixels(frame, name)
+        return occ if excluded is None else occ + [(PIXEL_OCCLUDER, excluded)]
+
+    def contact_pixels(self, frame: Frame, name: str) -> np.ndarray | None:
+        """The pixels (H, W) bool of camera ``name`` that carry no evidence of the part's outline
+        in this frame, or None (``masking.contact_exclusion_m`` null, no such pixel, or a surface
+        that does not look like the part): where the nearest surface seen is a world-fixed
+        environment mesh that collides (the receptacle) within ``contact_exclusion_m`` of the
+        box the grasp prior's fixed poses span (``contact_pixels.surface_pixels_in_box``; in the
+        end effector's frame, so no belief enters it), in a frame where that surface shows the
+        part's colours (``_looks_like_the_part``). There the part meets the surface it rests on;
+        a part and receptacle of one colour show no outline between them, and a mask takes in
+        the surface or not by chance. Excluded from the observed masks and, as an occluder,
+        from every pose's render, they count for no pose. Kept for the frame's stamp."""
+        margin = self.cfg.masking.contact_exclusion_m
+        if margin is None:
+            return None
+        img = frame.cameras[name]
+        key = (name, img.stamp_ns, frame.stamp_ns)
+        if key not in self._contact_pixels:
+            if len(self._contact_pixels) > 16:
+                self._contact_pixels.clear()
+            self._contact_pixels[key] = self._contact_pixels_of(frame, name, img, margin)
+        return self._contact_pixels[key]
+
+    def _contact_pixels_of(self, frame: Frame, name: str, img: SensorImage, margin_m: float) -> np.ndarray | None:
+        """``contact_pixels`` of camera image ``img`` (not cached)."""
+        box = prior_box(self.scene.object_mesh.bounds, frame.T_world_ee_at(img) @ self.prior_poses, margin_m)
+        surface = surface_pixels_in_box(self.scene, img, self.occluders(img), box)
+        return surface if surface is not None and self._looks_like_the_part(frame, name, img, surface) else None
+
+    def _looks_like_the_part(self, frame: Frame, name: str, img: SensorImage, surface: np.ndarray) -> bool:
+        """Whether the environment pixels ``surface`` (H, W) bool near the part show the part's
+        colours in camera image ``img``: the colour histograms (``masking.colour_bins``) of the
+        pixels every fixed grasp-prior pose covers (the part) and of the ``surface`` pixels none
+        covers (the surface beside it) overlap by at least ``masking.contact_exclusion_overlap``
+        (Bhattacharyya coefficient). False when either set is empty (nothing to compare)."""
+        roi, coverage = self.prior_coverage(frame, name, img, self.occluders(img))
+        part = coverage >= SURE_OBJECT
+        beside = roi.crop(surface) & (coverage < SURE_BACKGROUND)
+        if not part.any() or not beside.any():
+            return False
+        overlap = histogram_overlap(roi.image(img.image), part, beside, self.cfg.masking.colour_bins)
+        return overlap >= self.cfg.masking.contact_exclusion_overlap
+
+    def clear_contact_pixels(self, frame: Frame, name: str, full: np.ndarray) -> np.ndarray:
+        """Camera ``name``'s full-image mask or probability map (H, W) without its contact pixels
+        (``contact_pixels``): they hold no evidence, for any pose."""
+        excluded = self.contact_pixels(frame, name)
+        if excluded is None:
+            return full
+        out = np.array(full, copy=True)
+        out[excluded] = False if out.dtype == bool else 0
+        return out
+
     def observe(self, frame: Frame, belief: ParticleSet, converged: bool) -> Observation:
         """The frame's observation, ROIs and occluders from the predicted ``belief``;
         camera masks prompted at the belief's mean when ``converged`` (the paper's
         promptable mode), else chosen among the proposals (Algorithm 1-2)."""
         rois = self.rois(frame, belief.poses)
-        occluders = {name: [] if name in frame.tactile else self.occluders(frame.image(name))
+        occluders = {name: [] if name in frame.tactile else self.camera_occluders(frame, name)
                      for name in {**frame.cameras, **frame.tactile}}
         masks, outside = {}, {}
         for name, img in frame.tactile.items():
@@ -233,6 +297,7 @@ class ObservationModel:
             for name, img in frame.cameras.items():
                 full = self.observer.recorded_mask(img)
                 if full is not None:
+                    full = self.clear_contact_pixels(frame, name, full)
                     masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
         elif frame.cameras and self.cfg.masking.camera_evidence == "colour":
             mask_mode = "colour"
@@ -274,7 +339,8 @@ class ObservationModel:
         left out. With masks recorded in the log (``topic``) these are the observed masks."""
         if self.observer.recorded:
             full = {name: self.observer.recorded_mask(img) for name, img in cameras.items()}
-            return {name: (rois[name].crop(m), rois[name].outside_area(m)) for name, m in full.items() if m is not None}
+            full = {name: self.clear_contact_pixels(frame, name, m) for name, m in full.items() if m is not None}
+            return {name: (rois[name].crop(m), rois[name].outside_area(m)) for name, m in full.items()}
         proposals, outside, rendered = {}, {}, {}
         for name, img in cameras.items():
             roi = rois[name]
@@ -290,6 +356,7 @@ class ObservationModel:
                                           band_px=self.cfg.masking.belief_band_px)
             if grabcut is not None:
                 props.insert(0, prompt_roi.paste(grabcut, img.image.shape[:2], fill=False))
+            props = [self.clear_contact_pixels(frame, name, p) for p in props]
             proposals[name] = [roi.crop(p) for p in props]
             outside[name] = [roi.outside_area(p) for p in props]
         chosen = select_masks(proposals, rendered, {n: 1.0 for n in cameras})
@@ -309,7 +376,8 @@ class ObservationModel:
             box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
             found = self.observer.camera_proposals(img, box)
             if found:
-                out[name] = ProposalSet(roi, np.stack([roi.crop(p) for p in found]))
+                out[name] = ProposalSet(roi, np.stack([roi.crop(self.clear_contact_pixels(frame, name, p))
+                                                       for p in found]))
         return out
 
     def prior_window(self, frame: Frame, name: str, margin_px: float = 4.0) -> Roi:
@@ -340,6 +408,7 @@ class ObservationModel:
             window = object_probability(prior_roi.image(img.image), coverage, self.cfg.masking.colour_bins)
             if window is not None:
                 full = prior_roi.paste(window, img.image.shape[:2], fill=np.float32(0.0))
+                full = self.clear_contact_pixels(frame, name, full)
                 out[name] = (rois[name].average(full), rois[name].outside_sum(full))
         return out
 
@@ -352,5 +421,9 @@ class ObservationModel:
             full = Roi.full(img.camera)
             prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
                                                       img.camera, full, occluders[name])[0]
-            out[name] = rois[name].crop(self.observer.camera_prompt(img, prompt)) if prompt.any() else None
+            if not prompt.any():
+                out[name] = None
+                continue
+            mask = self.clear_contact_pixels(frame, name, self.observer.camera_prompt(img, prompt))
+            out[name] = rois[name].crop(mask)
         return out

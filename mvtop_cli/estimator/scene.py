@@ -40,6 +40,13 @@ class EnvPart:
     mesh: trimesh.Trimesh
     T_frame_mesh: np.ndarray
 
+    @property
+    def world_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo (3,), hi (3,)) [m]: the axis-aligned box of the mesh in its TF frame (``world``
+        for a fixed part)."""
+        corners = trimesh.transformations.transform_points(trimesh.bounds.corners(self.mesh.bounds), self.T_frame_mesh)
+        return corners.min(axis=0), corners.max(axis=0)
+
 
 class SceneModel:
     """Object and environment geometry for rendering and contact, from a validated config."""

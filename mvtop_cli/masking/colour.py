@@ -55,3 +55,16 @@ def object_probability(image: np.ndarray, coverage: np.ndarray, bins: int = 16, 
     p_f, p_b = p_f / p_f.sum(), p_b / p_b.sum()
     posterior = (p_f / (p_f + p_b)).astype(np.float32)
     return np.where(background, np.float32(0.0), posterior[idx])
+
+
+def histogram_overlap(image: np.ndarray, a: np.ndarray, b: np.ndarray, bins: int = 16) -> float:
+    """Bhattacharyya coefficient in [0, 1] of the colour histograms (``bins`` levels per channel)
+    of the pixels ``a`` and ``b`` (h, w) bool of ``image`` (h, w, 3) uint8: 1 when the two sets
+    share their colours in the same proportions, 0 when no colour bin holds pixels of both."""
+    if not a.any() or not b.any():
+        raise ValueError("histogram_overlap needs at least one pixel in each set")
+    idx = colour_index(image, bins)
+    n = bins ** 3
+    p = np.bincount(idx[a], minlength=n) / a.sum()
+    q = np.bincount(idx[b], minlength=n) / b.sum()
+    return float(np.sqrt(p * q).sum())

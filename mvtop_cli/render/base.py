@@ -10,7 +10,9 @@ into one binary mask per pose in a :class:`~mvtop_cli.render.roi.Roi` of that se
   where the object's nearest surface lies in front of the undeformed gel plane
   ``z = gel_distance_m``, by more than ``penetration_threshold_m`` (the object presses in).
 
-Occluders are ``(mesh_id, T_sensor_mesh)`` pairs with fixed poses for the call. Lens
+Occluders are ``(mesh_id, T_sensor_mesh)`` pairs with fixed poses for the call, or
+``(PIXEL_OCCLUDER, mask)`` with a full-image mask (H, W) bool: pixels that hide every mesh
+rendered, so they carry no evidence (the estimator's excluded contact pixels). Lens
 distortion is ignored: observed masks must be undistorted first.
 """
 
@@ -29,6 +31,7 @@ from mvtop_cli.render.roi import Roi
 
 RenderMode = Literal["silhouette", "tactile"]
 Occluder = tuple[str, np.ndarray]
+PIXEL_OCCLUDER = "pixels"  # an occluder of image pixels (H, W) bool instead of a mesh pose
 
 # Nearest depth rendered [m]; both renderers clip there. A tactile sensor's gel sits ~25 mm
 # from its camera and cameras see the object from >= 0.1 m, so 1 mm loses nothing.
@@ -139,12 +142,30 @@ class RendererBase(ABC):
         return T
 
     def _occluders(self, occluders: Sequence[Occluder] | None) -> list[tuple[RenderMesh, np.ndarray]]:
+        """The mesh occluders as (mesh, T_sensor_mesh); pixel occluders are ``_blocked``'s."""
         out = []
         for mesh_id, T in occluders or ():
+            if mesh_id == PIXEL_OCCLUDER:
+                continue
             T = np.asarray(T, dtype=np.float64)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise ValueError(f"occluder {mesh_id!r}: pose must be a finite (4, 4), got shape {T.shape}")
             out.append((self.mesh(mesh_id), np.ascontiguousarray(T)))
+        return out
+
+    @staticmethod
+    def _blocked(occluders: Sequence[Occluder] | None, camera: PinholeCamera, roi: Roi) -> np.ndarray | None:
+        """The ROI pixels (h, w) bool hidden by the pixel occluders (``PIXEL_OCCLUDER``), or None."""
+        out = None
+        for name, mask in occluders or ():
+            if name != PIXEL_OCCLUDER:
+                continue
+            mask = np.asarray(mask)
+            if mask.dtype != bool or mask.shape != (camera.height, camera.width):
+                raise ValueError(f"pixel occluder must be a ({camera.height}, {camera.width}) bool image mask, "
+                                 f"got {mask.dtype} {mask.shape}")
+            crop = roi.crop(mask)
+            out = crop if out is None else out | crop
         return out
 
     @staticmethod

@@ -192,7 +192,9 @@ def _contour_pose(T, verts, planes, edges, edge_faces, opposite, crease, intr, w
                         py = min(max(y + side * r * ny, 0.0), height - 1.0)
                         there = thr[int(py + 0.5) * width + int(px + 0.5)]
                         # an outline: an occluder on one side only, or one occluder before another
-                        if abs(there - here) > depth_step * max(there, here):
+                        # (a pixel occluder's inf hides everything: its edge is an outline too)
+                        if there != here and (max(there, here) == np.inf
+                                              or abs(there - here) > depth_step * max(there, here)):
                             near = True
                 if near:
                     continue

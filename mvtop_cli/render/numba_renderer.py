@@ -65,25 +65,28 @@ class NumbaMaskRenderer(RendererBase):
     def _threshold(
         self,
         occluders: Sequence[Occluder] | None,
-        intr: np.ndarray,
-        w: int,
-        h: int,
+        camera: PinholeCamera,
+        roi: Roi,
         plane_m: float | None,
     ) -> np.ndarray | None:
-        """Per-pixel inverse depth (h * w,) float64 a fragment must exceed (read-only), or None
-        for none; kept per occluder poses, window and plane."""
-        key = (tuple((m, np.asarray(T, dtype=np.float64).tobytes()) for m, T in occluders or ()),
-               intr.tobytes(), w, h, plane_m)
+        """Per-pixel inverse depth (h * w,) float64 a fragment must exceed (read-only; ``inf``
+        where a pixel occluder hides everything), or None for none; kept per occluders, window
+        and plane."""
+        intr, w, h = _intrinsics(camera, roi)
+        key = (tuple((m, np.asarray(T).tobytes()) for m, T in occluders or ()), intr.tobytes(), w, h, plane_m)
         if key in self._thresholds:
             return self._thresholds[key]
         occ = self._occluders(occluders)
+        blocked = self._blocked(occluders, camera, roi)
         thr = None
-        if occ or plane_m is not None:
+        if occ or plane_m is not None or blocked is not None:
             thr = np.zeros(w * h, dtype=np.float64)
             for mesh, T in occ:
                 np.maximum(thr, self._invdepth(mesh, T[None], intr, w, h, None)[0], out=thr)
             if plane_m is not None:
                 np.maximum(thr, 1.0 / plane_m, out=thr)
+            if blocked is not None:
+                thr[blocked.reshape(-1)] = np.inf
             thr.flags.writeable = False
         if len(self._thresholds) >= self._THRESHOLD_CACHE_SIZE:
             self._thresholds.clear()
@@ -106,7 +109,7 @@ class NumbaMaskRenderer(RendererBase):
         mesh = self.mesh(mesh_id)
         plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
         intr, w, h = _intrinsics(camera, roi)
-        thr = self._threshold(occluders, intr, w, h, plane)
+        thr = self._threshold(occluders, camera, roi, plane)
         out = np.zeros((len(T), w * h), dtype=np.bool_)
         use_thr = thr is not None
         t = thr if use_thr else np.zeros(1)
@@ -140,7 +143,7 @@ class NumbaMaskRenderer(RendererBase):
         if obs.shape != (h, w):
             raise ValueError(f"observed mask shape {obs.shape} != ROI shape {(h, w)}")
         counts, unit = soft_observed(obs)
-        thr = self._threshold(occluders, intr, w, h, plane)
+        thr = self._threshold(occluders, camera, roi, plane)
         use_thr = thr is not None
         t = thr if use_thr else np.zeros(1)
         t_min = float(t.min())
@@ -183,7 +186,7 @@ class NumbaMaskRenderer(RendererBase):
         if key not in self._topologies:
             self._topologies[key] = ContourTopology.from_mesh(mesh, crease_deg)
         intr, w, h = _intrinsics(camera, roi)
-        thr = self._threshold(occluders, intr, w, h, None)
+        thr = self._threshold(occluders, camera, roi, None)
         return contour_gradient(mesh, self._topologies[key], T, camera, roi, gx, gy, thr, spacing_px,
                                 margin_px, depth_step, self.znear_m)
 
@@ -200,7 +203,7 @@ class NumbaMaskRenderer(RendererBase):
         T = self._poses(T_sensor_object)
         mesh = self.mesh(mesh_id)
         intr, w, h = _intrinsics(camera, roi)
-        thr = self._threshold(occluders, intr, w, h, None)
+        thr = self._threshold(occluders, camera, roi, None)
         iz = self._invdepth(mesh, T, intr, w, h, thr)
         with np.errstate(divide="ignore"):
             depth = np.where(iz > 0, np.float32(1.0) / iz, np.float32(np.inf)).astype(np.float32)

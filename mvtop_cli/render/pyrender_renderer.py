@@ -103,6 +103,9 @@ class PyrenderMaskRenderer(RendererBase):
             if occ_depth is not None:
                 d = np.where((occ_depth > 0) & (occ_depth <= d), np.float32(0.0), d)
             out[i] = d
+        blocked = self._blocked(occluders, camera, roi)
+        if blocked is not None:
+            out[:, blocked] = 0.0
         return out
 
     def render_masks(

@@ -21,6 +21,7 @@ from mvtop_cli.geometry.se3 import perturb_about_origin
 from mvtop_cli.io.frames import FrameReader
 from mvtop_cli.io.mcap_reader import McapLog
 from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+from mvtop_cli.render.base import PIXEL_OCCLUDER
 from mvtop_cli.render.roi import Roi
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -175,3 +176,59 @@ def test_cameras_and_tactile_sensors_have_their_own_window_size(camera_side, tac
     # cameras' windows over this wide belief at 96
     assert all(rois[n].scale < 1.0 for n in frame.tactile)
     assert all((rois[n].scale < 1.0) == (camera_side == 96) for n in frame.cameras)
+
+
+def test_contact_pixels_are_the_receptacle_near_the_part_and_count_for_no_pose():
+    """``masking.contact_exclusion_m``: on the plug sample, no pixel is excluded on the approach
+    (frame 5); in contact (frame 22) the excluded pixels all show the receptacle (it is the
+    nearest surface there), they hold less than a fifth of the true silhouette, whatever the
+    belief they are the same, and no observed mask holds one."""
+    cfg = load_config(ROOT / "configs" / "plug.yaml")
+    cfg = replace(cfg, masking=replace(cfg.masking, contact_exclusion_m=0.001))
+    scene = SceneModel(cfg, build_contact=False)
+    with McapLog(ROOT / "sample_logs" / "plug.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        model = ObservationModel(cfg, scene, lambda fr, t: reader.tf.lookup(cfg.frames.world, fr, t))
+        frames = {f.index: f for f in reader if f.index in FRAMES}
+        assert all(model.contact_pixels(frames[FRAMES[0]], cam) is None for cam in frames[FRAMES[0]].cameras)
+        frame = frames[FRAMES[1]]
+        T_gt = se3.invert(frame.T_world_ee) @ frame.T_world_object_gt
+        observed = [model.observe(frame, init_from_prior(centre, 3e-4, np.radians(0.3), 100,
+                                                          np.random.default_rng(1)), converged=False)
+                    for centre in (T_gt, _offset_centres(T_gt, np.random.default_rng(2))[0])]
+        for cam, img in frame.cameras.items():
+            excluded = model.contact_pixels(frame, cam)
+            assert excluded is not None and excluded.sum() > 500, cam
+            meshes = model.occluders(img)
+            full = Roi.full(img.camera)
+            depth = {m: scene.renderer.render_depth(m, T[None], img.camera, full)[0] for m, T in meshes}
+            nearest = np.min(np.stack(list(depth.values())), axis=0)
+            receptacle = depth["env:receptacle"]
+            assert np.all(receptacle[excluded] <= nearest[excluded]), cam
+            truth = scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(cam, T_gt)[None], img.camera,
+                                                full, meshes)[0]
+            assert 0 < (truth & excluded).sum() < 0.2 * truth.sum(), cam
+            for obs in observed:
+                pixel_occluders = [m for name, m in obs.occluders[cam] if name == PIXEL_OCCLUDER]
+                assert len(pixel_occluders) == 1 and np.array_equal(pixel_occluders[0], excluded)
+                assert not (obs.masks[cam] & obs.rois[cam].crop(excluded)).any(), cam
+    off = replace(cfg, masking=replace(cfg.masking, contact_exclusion_m=None))
+    assert ObservationModel(off, scene, None).contact_pixels(frame, "front") is None
+
+
+def test_contact_pixels_are_kept_where_the_receptacle_does_not_look_like_the_part():
+    """The shaft peg (light grey) rests on a dark grey receptacle: its image separates them, so
+    no pixel is excluded in contact (frame 22) with the default colour overlap (0.55), while
+    the same geometry with any overlap accepted excludes the receptacle's pixels near it."""
+    cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
+    scene = SceneModel(cfg, build_contact=False)
+    with McapLog(ROOT / "sample_logs" / "shaft_peg.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        frame = next(f for f in reader if f.index == FRAMES[1])
+        excluded = {}
+        for overlap in (cfg.masking.contact_exclusion_overlap, 0.0):
+            c = replace(cfg, masking=replace(cfg.masking, contact_exclusion_m=0.001, contact_exclusion_overlap=overlap))
+            model = ObservationModel(c, scene, lambda fr, t: reader.tf.lookup(cfg.frames.world, fr, t))
+            excluded[overlap] = {cam: model.contact_pixels(frame, cam) for cam in frame.cameras}
+    assert all(m is None for m in excluded[cfg.masking.contact_exclusion_overlap].values())
+    assert all(m is not None and m.sum() > 100 for m in excluded[0.0].values())

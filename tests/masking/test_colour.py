@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvtop_cli.masking.colour import SURE_BACKGROUND, colour_index, object_probability
+from mvtop_cli.masking.colour import SURE_BACKGROUND, colour_index, histogram_overlap, object_probability
 
 
 def _scene(rng: np.random.Generator):
@@ -60,3 +60,18 @@ def test_colour_index_checks_its_input():
         colour_index(img.astype(np.float32), 16)
     with pytest.raises(ValueError, match="differ in size"):
         object_probability(img, np.zeros((3, 2)))
+
+
+def test_histogram_overlap_is_one_for_shared_colours_and_zero_for_disjoint_ones():
+    image = np.zeros((4, 6, 3), np.uint8)
+    image[:, :2] = (250, 250, 245)  # white
+    image[:, 2:4] = (20, 20, 22)  # black
+    image[:, 4:] = (248, 252, 240)  # another white, in the same bins
+    cols = np.broadcast_to(np.arange(6), (4, 6))
+    white_a, black, white_b = cols < 2, (cols >= 2) & (cols < 4), cols >= 4
+    assert histogram_overlap(image, white_a, white_b) == pytest.approx(1.0)
+    assert histogram_overlap(image, white_a, black) == 0.0
+    # half of one set in the other's colour: sqrt(0.5 * 1) = 0.707
+    assert histogram_overlap(image, white_a | black, white_b) == pytest.approx(np.sqrt(0.5))
+    with pytest.raises(ValueError, match="at least one pixel in each set"):
+        histogram_overlap(image, white_a, np.zeros((4, 6), bool))

@@ -12,6 +12,7 @@ from mvtop_cli.estimator.edges import image_gradients
 from mvtop_cli.geometry import se3
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.render import NumbaMaskRenderer
+from mvtop_cli.render.base import PIXEL_OCCLUDER
 from mvtop_cli.render.contour import ContourTopology, contour_gradient
 from mvtop_cli.render.mesh import RenderMesh
 from mvtop_cli.render.roi import Roi
@@ -121,8 +122,7 @@ def test_contour_along_an_occluder_outline_is_not_read(renderer):
     gx, gy = image_gradients(image, 0.8)
     u_left = CAMERA.fx * (0.004 - 0.01) / 0.29 + CAMERA.cx  # the front face is at z = 0.29 m
     x_wall = ((u_left - 1.5) - CAMERA.cx) * 0.2 / CAMERA.fx - 0.1  # wall centre: its right edge 1.5 px left
-    thr = renderer._threshold([("wall", se3.make_pose(np.eye(3), [x_wall, 0.0, 0.2]))],
-                              np.array([CAMERA.fx, CAMERA.fy, CAMERA.cx, CAMERA.cy]), CAMERA.width, CAMERA.height, None)
+    thr = renderer._threshold([("wall", se3.make_pose(np.eye(3), [x_wall, 0.0, 0.2]))], CAMERA, Roi.full(CAMERA), None)
     mesh = renderer.mesh("cube")
     topo = ContourTopology.from_mesh(mesh)
     counts = [contour_gradient(mesh, topo, T, CAMERA, Roi.full(CAMERA), gx, gy, t, 1.0, m, 0.01, 0.01)[1][0]
@@ -130,6 +130,13 @@ def test_contour_along_an_occluder_outline_is_not_read(renderer):
     side_px = CAMERA.fy * 0.02 / 0.29  # the left outline's length
     assert counts[0] == counts[1], counts
     assert abs((counts[1] - counts[2]) - side_px) <= 3, (counts, side_px)
+    # a pixel occluder over the same columns: its edge is an outline as the wall's is
+    hidden = np.broadcast_to(np.arange(CAMERA.width) < round(u_left - 1.5), (CAMERA.height, CAMERA.width)).copy()
+    thr = renderer._threshold([(PIXEL_OCCLUDER, hidden)], CAMERA, Roi.full(CAMERA), None)
+    pixels = [contour_gradient(mesh, topo, T, CAMERA, Roi.full(CAMERA), gx, gy, thr, 1.0, m, 0.01, 0.01)[1][0]
+              for m in (0.0, 3.0)]
+    assert pixels[0] == counts[0], (pixels, counts)
+    assert abs((pixels[0] - pixels[1]) - side_px) <= 3, (pixels, side_px)
 
 
 def test_a_roi_window_scores_like_the_full_image(renderer):

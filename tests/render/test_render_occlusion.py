@@ -1,12 +1,16 @@
-"""Occluders hide the object where they are nearer to the sensor, and only there."""
+"""Occluders hide the object where they are nearer to the sensor, and only there; pixel
+occluders hide their pixels from every pose."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from mvtop_cli.geometry import se3
 from mvtop_cli.render import NumbaMaskRenderer, roi_for_particles
+from mvtop_cli.render.base import PIXEL_OCCLUDER
+from mvtop_cli.render.iou import iou_scores
 
 
 def _setup(scene, fast, n=8):
@@ -70,3 +74,42 @@ def test_scores_follow_a_replaced_occluder_mesh(scene):
     shown = r.score_masks("cube", T, scene.camera, roi, observed, occluders=occ)
     assert shown[0] == 1.0 and hidden[0] < 0.95  # the half wall hid part of the pose observed
     np.testing.assert_array_equal(shown, r.score_masks("cube", T, scene.camera, roi, observed))
+
+
+def _left_half(scene) -> np.ndarray:
+    """Image columns left of the principal point, as a full-image pixel occluder mask."""
+    cols = np.arange(scene.camera.width) < scene.camera.cx
+    return np.broadcast_to(cols, (scene.camera.height, scene.camera.width)).copy()
+
+
+def test_pixel_occluder_hides_its_pixels_from_masks_depth_and_scores(scene, fast):
+    T, roi, plain = _setup(scene, fast)
+    hidden = roi.crop(_left_half(scene))
+    occ = [(PIXEL_OCCLUDER, _left_half(scene))]
+    masks = fast.render_masks("cube", T, scene.camera, roi, occluders=occ)
+    np.testing.assert_array_equal(masks, plain & ~hidden)
+    assert plain[:, hidden].any()  # the poses did reach into the hidden pixels
+    depth = fast.render_depth("cube", T, scene.camera, roi, occluders=occ)
+    assert np.isinf(depth[:, hidden]).all() and np.isfinite(depth[:, ~hidden][plain[:, ~hidden]]).all()
+    # scored as the pixels outside it alone: the same as scoring the cleared masks without it
+    observed = plain[0] & ~hidden
+    np.testing.assert_allclose(
+        fast.score_masks("cube", T, scene.camera, roi, observed, occluders=occ),
+        iou_scores(plain & ~hidden, observed))
+
+
+def test_pixel_occluder_combines_with_a_mesh_and_agrees_with_pyrender(scene, fast, reference):
+    T, roi, _ = _setup(scene, fast)
+    wall = ("wall", se3.make_pose(np.eye(3), [0.1 + 0.004, 0.0, 0.4]))
+    occ = [wall, (PIXEL_OCCLUDER, _left_half(scene))]
+    a = fast.render_masks("cube", T, scene.camera, roi, occluders=occ)
+    b = reference.render_masks("cube", T, scene.camera, roi, occluders=occ)
+    mesh_only = fast.render_masks("cube", T, scene.camera, roi, occluders=[wall])
+    np.testing.assert_array_equal(a, mesh_only & ~roi.crop(_left_half(scene)))
+    assert (a == b).mean() > 0.99
+
+
+def test_pixel_occluder_of_the_wrong_shape_is_refused(scene, fast):
+    T, roi, _ = _setup(scene, fast)
+    with pytest.raises(ValueError, match=r"pixel occluder must be a \(480, 640\) bool image mask, got bool \(10, 10\)"):
+        fast.render_masks("cube", T, scene.camera, roi, occluders=[(PIXEL_OCCLUDER, np.zeros((10, 10), bool))])
