@@ -13,6 +13,7 @@ shows the part's colours).
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from ..geometry import se3
 from ..records import SensorImage
@@ -20,16 +21,11 @@ from ..render.roi import Roi
 from .scene import SceneModel
 
 
-def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The 8 corners (8, 3) of the axis-aligned box ``lo`` (3,) .. ``hi`` (3,)."""
-    return np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, -1).T
-
-
 def prior_box(object_bounds: np.ndarray, T_world_object: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(lo (3,), hi (3,)) [m] in ``world``: the axis-aligned box of the object's bounding box
     ``object_bounds`` (2, 3) [m, object frame] at every pose of ``T_world_object`` (N, 4, 4),
     widened by ``margin_m`` on every side."""
-    pts = se3.transform_points(T_world_object, box_corners(*object_bounds)).reshape(-1, 3)
+    pts = se3.transform_points(T_world_object, trimesh.bounds.corners(object_bounds)).reshape(-1, 3)
     return pts.min(axis=0) - margin_m, pts.max(axis=0) + margin_m
 
 
@@ -41,7 +37,7 @@ def _box_window(img: SensorImage, box: tuple[np.ndarray, np.ndarray]) -> Roi | N
     """The image window (full resolution) the box projects to; the whole image when the box
     reaches behind the camera; None when it projects outside the image."""
     cam = img.camera
-    p_sensor = se3.transform_points(se3.invert(img.T_world_sensor), box_corners(*box))
+    p_sensor = se3.transform_points(se3.invert(img.T_world_sensor), trimesh.bounds.corners(np.array(box)))
     if not np.all(p_sensor[:, 2] > 1e-3):
         return Roi.full(cam)
     uv = cam.project(p_sensor)

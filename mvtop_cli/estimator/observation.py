@@ -253,16 +253,20 @@ class ObservationModel:
     def _contact_pixels_of(self, frame: Frame, name: str, img: SensorImage, margin_m: float) -> np.ndarray | None:
         """``contact_pixels`` of camera image ``img`` (not cached)."""
         box = prior_box(self.scene.object_mesh.bounds, frame.T_world_ee_at(img) @ self.prior_poses, margin_m)
-        surface = surface_pixels_in_box(self.scene, img, self.occluders(img), box)
-        return surface if surface is not None and self._looks_like_the_part(frame, name, img, surface) else None
+        occluders = self.occluders(img)
+        surface = surface_pixels_in_box(self.scene, img, occluders, box)
+        if surface is None or not self._looks_like_the_part(frame, name, img, occluders, surface):
+            return None
+        return surface
 
-    def _looks_like_the_part(self, frame: Frame, name: str, img: SensorImage, surface: np.ndarray) -> bool:
+    def _looks_like_the_part(self, frame: Frame, name: str, img: SensorImage, occluders: list,
+                             surface: np.ndarray) -> bool:
         """Whether the environment pixels ``surface`` (H, W) bool near the part show the part's
         colours in camera image ``img``: the colour histograms (``masking.colour_bins``) of the
         pixels every fixed grasp-prior pose covers (the part) and of the ``surface`` pixels none
         covers (the surface beside it) overlap by at least ``masking.contact_exclusion_overlap``
         (Bhattacharyya coefficient). False when either set is empty (nothing to compare)."""
-        roi, coverage = self.prior_coverage(frame, name, img, self.occluders(img))
+        roi, coverage = self.prior_coverage(frame, name, img, occluders)
         part = coverage >= SURE_OBJECT
         beside = roi.crop(surface) & (coverage < SURE_BACKGROUND)
         if not part.any() or not beside.any():
