@@ -772,6 +772,14 @@ def benchmark_scene_option():
                              "hard). One scene per --out folder.")
 
 
+def benchmark_settings_option():
+    """``--set KEY=VALUE`` (repeatable): config settings over every scene config of a benchmark."""
+    return click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+                        help="Change one config setting in every run, e.g. --set contact.softness_m=5.0e-05 "
+                             "(a dotted config key, a YAML value; repeatable). Recorded with each run; one set of "
+                             "settings per --out folder.")
+
+
 def benchmark_grasp_options(command):
     """The options every simulated benchmark shares: ``--out``, which objects (``--objects``,
     ``--object-file``) and which grasps (``--poses`` from ``--first-seed``)."""
@@ -833,6 +841,7 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
 @benchmark_scene_option()
+@benchmark_settings_option()
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--import-results", "import_results", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -842,21 +851,23 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
               "finished (or imported); make no new run.")
 @benchmark_ray_option()
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                           first_seed: int, methods: str, frames: int, scene: str, particles: int | None, workers: int,
-                           import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
+                           first_seed: int, methods: str, frames: int, scene: str, settings: tuple[str, ...],
+                           particles: int | None, workers: int, import_results: Path | None, summary_only: bool,
+                           ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
     log-scale box plots of the errors per object and method in OUT/summary.html. OUT/results.jsonl.gz
     keeps every finished run in compact form, for --import-results elsewhere."""
     from .benchmarks.accuracy import METHODS, AccuracyOptions, format_table, run_accuracy
+    from .config import parse_settings
 
     objs, files = _benchmark_objects(objects, object_files)
     meths = _benchmark_methods(methods, METHODS)
     options = AccuracyOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths, frames=frames,
                               particles=particles, workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
-                              ray=ray_address, scene=scene)
+                              ray=ray_address, scene=scene, settings=parse_settings(settings))
     with _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
@@ -874,6 +885,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
               help="Simulate a segmenter node on the robot (the paper's supervised setting): each camera image's "
                    "object mask is recorded with it, its outline off by up to this many pixels (0: exact), and the "
                    "estimator reads it (masking backend topic). Default: masks made from the images.")
+@benchmark_settings_option()
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
 @click.option("--keep-logs", is_flag=True, help="Write every attempt as an MCAP log (OUT/runs/RUN/logs/).")
@@ -884,14 +896,15 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 @benchmark_ray_option()
 def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
                             first_seed: int, methods: str, attempts: int, scene: str, recorded_masks_px: int | None,
-                            particles: int | None, workers: int, keep_logs: bool, import_results: Path | None,
-                            summary_only: bool, ray_address: str | None) -> None:
+                            settings: tuple[str, ...], particles: int | None, workers: int, keep_logs: bool,
+                            import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """The paper's Table I in closed loop: every object x grasp x method is inserted in the
     simulator, the robot aligning the estimated object pose with the receptacle and retrying
     after a stalled descent; prints the success rates (per object and method, and their
     average), attempts and time to insert, and writes them to OUT/summary.md and summary.json;
     OUT/results.jsonl.gz keeps every finished run."""
     from .benchmarks.insertion import METHODS, InsertionBenchmarkOptions, format_table, run_insertion_benchmark
+    from .config import parse_settings
 
     objs, files = _benchmark_objects(objects, object_files)
     meths = _benchmark_methods(methods, METHODS)
@@ -900,7 +913,7 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
                                         particles=particles, workers=workers, object_files=files,
                                         keep_logs=keep_logs, import_results=import_results,
                                         summary_only=summary_only, ray=ray_address, scene=scene,
-                                        recorded_masks_px=recorded_masks_px)
+                                        recorded_masks_px=recorded_masks_px, settings=parse_settings(settings))
     with _progress("benchmark insertion") as update:
         summary = run_insertion_benchmark(out_dir, options, progress=update)
     click.echo(format_table(summary))

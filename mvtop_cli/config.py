@@ -783,8 +783,72 @@ def parse_config(data: Any, source: Path | str = "<config>", base_dir: Path | No
     return dataclasses.replace(cfg, source=source)
 
 
-def load_config(path: Path | str) -> Config:
-    """Load and validate a YAML config file; raises ``ConfigError`` naming file and dotted key."""
+def parse_settings(items: typing.Sequence[str], option: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` overrides (a command's repeatable ``--set``) as ``{dotted key: value}``.
+
+    KEY is a dotted config key (``contact.softness_m``; a list item by its index,
+    ``sensors.cameras.0.name``); VALUE is read as YAML (``500`` an int, ``[1, 2]`` a list),
+    and a number written in exponent form without a point (``5e-5``, a string to YAML 1.1) as
+    a float. The keys are checked when the settings are applied to a config
+    (``apply_settings``, then ``parse_config``)."""
+    settings: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        parts = key.split(".")
+        if not sep or not key or not all(parts):
+            raise ConfigError(f"{option}: expected KEY=VALUE with a dotted config key, e.g. "
+                              f"contact.softness_m=5.0e-05, got {item!r}")
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError:
+            raise ConfigError(f"{option} {key}: expected a YAML value, got {text!r}") from None
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                pass
+        if key in settings:
+            raise ConfigError(f"{option} {key}: given twice")
+        settings[key] = value
+    return settings
+
+
+def apply_settings(data: Any, settings: typing.Mapping[str, Any], option: str = "--set") -> Any:
+    """A copy of parsed YAML config ``data`` with each dotted key of ``settings`` set to its
+    value (``parse_settings``); a missing section is created, so that an unknown key reaches
+    ``parse_config``'s did-you-mean check. A key that passes through a value that is not a
+    section (or a list index out of range) is a ``ConfigError`` naming it."""
+    import copy
+
+    data = copy.deepcopy(data) if data is not None else {}
+    for key, value in settings.items():
+        parts = key.split(".")
+        node = data
+        for depth, part in enumerate(parts):
+            last = depth == len(parts) - 1
+            where = ".".join(parts[:depth]) or "the config"
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise ConfigError(f"{option} {key}: {where} is a list of {len(node)}; expected an index "
+                                      f"0-{len(node) - 1}, got {part!r}")
+                index: Any = int(part)
+            elif isinstance(node, dict):
+                index = part
+                if not last and node.get(part) is None:
+                    node[part] = {}
+            else:
+                raise ConfigError(f"{option} {key}: {where} is a value, not a section")
+            if last:
+                node[index] = value
+            else:
+                node = node[index]
+    return data
+
+
+def load_config(path: Path | str, settings: typing.Mapping[str, Any] | None = None) -> Config:
+    """Load and validate a YAML config file, with ``settings`` (``parse_settings``) applied
+    over it; raises ``ConfigError`` naming file and dotted key."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -799,6 +863,8 @@ def load_config(path: Path | str) -> Config:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise ConfigError(f"{path}: invalid YAML{where}: {problem}") from None
+    if settings:
+        data = apply_settings(data, settings)
     return parse_config(data, path, path.resolve().parent)
 
 

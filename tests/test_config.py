@@ -195,3 +195,72 @@ def test_the_non_penetration_factor_is_on_by_default_and_null_turns_it_off(cfg_d
     assert load_config(write(cfg_dir, BASE)).contact.penetration_softness_m == 5e-5
     off = load_config(write(cfg_dir, BASE, {"contact.penetration_softness_m": None}))
     assert off.contact.penetration_softness_m is None and off.contact.penetration_tolerance_m == 1e-4
+
+
+def test_settings_are_read_as_yaml_values_with_exponents_as_floats():
+    from mvtop_cli.config import parse_settings
+
+    got = parse_settings(["contact.softness_m=5e-5", "filter.num_particles=800", "masking.camera.backend=grabcut",
+                          "sensors.cameras.0.name=left", "filter.sigma_low_m= 1.0e-4"])
+    assert got == {"contact.softness_m": 5e-5, "filter.num_particles": 800, "masking.camera.backend": "grabcut",
+                   "sensors.cameras.0.name": "left", "filter.sigma_low_m": 1e-4}
+    assert isinstance(got["contact.softness_m"], float) and isinstance(got["filter.num_particles"], int)
+
+
+@pytest.mark.parametrize("item, message", [
+    ("contact.softness_m", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, "
+                           "got 'contact.softness_m'"),
+    ("contact..softness_m=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, "
+                              "got 'contact..softness_m=1'"),
+    ("=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, got '=1'"),
+    ("filter.temperature=[1", "--set filter.temperature: expected a YAML value, got '[1'"),
+])
+def test_a_malformed_setting_is_one_line_naming_it(item, message):
+    from mvtop_cli.config import parse_settings
+
+    with pytest.raises(ConfigError) as info:
+        parse_settings([item])
+    assert str(info.value) == message
+
+
+def test_a_setting_given_twice_is_refused():
+    from mvtop_cli.config import parse_settings
+
+    with pytest.raises(ConfigError, match=r"^--set contact.softness_m: given twice$"):
+        parse_settings(["contact.softness_m=1e-4", "contact.softness_m=2e-4"])
+
+
+def test_settings_override_the_file_and_reach_the_typed_config(cfg_dir):
+    path = cfg_dir / "config.yaml"
+    path.write_text(BASE)
+    cfg = load_config(path, {"contact.softness_m": 5e-5, "filter.num_particles": 800,
+                             "sensors.cameras.0.name": "top"})
+    assert cfg.contact.softness_m == 5e-5 and cfg.filter.num_particles == 800
+    assert cfg.sensors.cameras[0].name == "top"
+    assert load_config(path).contact.softness_m != 5e-5  # the file itself is unchanged
+    assert yaml.safe_load(path.read_text()) == yaml.safe_load(BASE)
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"contact.softnes_m": 1e-4}, "contact.softnes_m: unknown key (did you mean 'softness_m'?)"),
+    ({"contact.softness_m": -1.0}, "contact.softness_m: expected a value > 0.0, got -1.0"),
+])
+def test_a_setting_the_config_rejects_is_named_by_its_key(cfg_dir, settings, message):
+    path = cfg_dir / "config.yaml"
+    path.write_text(BASE)
+    with pytest.raises(ConfigError) as info:
+        load_config(path, settings)
+    assert str(info.value) == f"{path}: {message}"
+
+
+@pytest.mark.parametrize("key, message", [
+    ("sensors.cameras.1.name", "--set sensors.cameras.1.name: sensors.cameras is a list of 1; expected an index 0-0, "
+                               "got '1'"),
+    ("object.name.first", "--set object.name.first: object.name is a value, not a section"),
+])
+def test_a_setting_through_a_value_or_past_a_list_is_refused(key, message):
+    from mvtop_cli.config import apply_settings
+
+    with pytest.raises(ConfigError) as info:
+        apply_settings(yaml.safe_load(BASE), {key: "x"})
+    assert str(info.value) == message

@@ -23,7 +23,7 @@ import html
 import json
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -36,11 +36,14 @@ from ..eval import report as R
 from ..io.atomic import atomic_output
 from .runs import (
     append_invocation,
+    check_settings_apply,
     code_fingerprint,
     plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
+    settings_record,
+    settings_text,
     totals,
     write_jsonl_gz,
     write_result,
@@ -77,6 +80,7 @@ class AccuracyOptions:
     summary_only: bool = False  # tables over the finished runs; no run is made
     ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
     scene: str = "default"  # simulated camera scene: default, or hard (pipelines.simulate.HARD_SCENE)
+    settings: dict = field(default_factory=dict)  # {dotted config key: value} over every scene config (--set)
 
 
 RESULTS_FILE = "results.jsonl.gz"
@@ -85,10 +89,11 @@ _RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "f
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
-             source: str | None = None, scene_name: str = "default") -> dict:
+             source: str | None = None, scene_name: str = "default", settings: dict | None = None) -> dict:
     """Simulate (once per object and seed, shared by the methods), estimate, evaluate. ``source``:
     the object file of ``obj`` (default: the built-in object of that name); ``scene_name`` the
-    simulated camera scene (``default`` or ``hard``)."""
+    simulated camera scene (``default`` or ``hard``); ``settings`` ``{dotted config key: value}``
+    over the scene config (``--set``)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.estimate import EstimateOptions, estimate
@@ -109,7 +114,7 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
         simulate_seconds = time.perf_counter() - ts
     if not cfg_path.exists():
         write_scene_config(source or obj, cfg_path)
-    cfg = load_config(cfg_path)
+    cfg = load_config(cfg_path, settings)
     t0, c0 = time.perf_counter(), time.process_time()
     extra = {}
     if method in MODALITY_SETS:
@@ -126,7 +131,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                            "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
-                           "code": code_fingerprint(), **scene_record(scene_name), **extra}
+                           "code": code_fingerprint(), **scene_record(scene_name), **settings_record(settings),
+                           **extra}
     write_result(run, report)
     return report
 
@@ -144,23 +150,25 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
         from .baselines.chsel_runner import require
 
         require()  # a missing extra stops here, before any run, with the pip command
+    files = dict(options.object_files)
+    check_settings_apply([files.get(o, o) for o in options.objects], options.settings)
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
                                               options.first_seed, options.scene, options.import_results, read_results,
-                                              options.summary_only)
+                                              options.summary_only, options.settings)
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
-    files = dict(options.object_files)
 
     def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
         o, s, m = key
-        return (o, s, m, str(run_dir), options.frames, options.particles, threads, files.get(o), options.scene)
+        return (o, s, m, str(run_dir), options.frames, options.particles, threads, files.get(o), options.scene,
+                options.settings)
 
     seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
-               "scene": options.scene,
+               "scene": options.scene, "settings": dict(options.settings),
                "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
                "imported_this_run": imported, "totals": totals(out_dir, reports), "table": {}}
     for method in options.methods:
@@ -334,7 +342,9 @@ def _header_lines(summary: dict) -> list[str]:
             "folder; " if t["invocations"] else "")
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
              f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
-             f"{len(summary['methods'])} methods){'' if done else ': not complete'}; code {codes}.",
+             f"{len(summary['methods'])} methods"
+             f"{', ' + settings_text(summary['settings']) if summary.get('settings') else ''})"
+             f"{'' if done else ': not complete'}; code {codes}.",
              f"Time: {wall}the runs (estimate + eval) added up to {format_duration(t['run_seconds_sum'])} wall and "
              f"{format_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]
     return lines

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -37,11 +37,14 @@ from ..io.atomic import atomic_output
 from .accuracy import MODALITY_SETS
 from .runs import (
     append_invocation,
+    check_settings_apply,
     code_fingerprint,
     plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
+    settings_record,
+    settings_text,
     totals,
     write_jsonl_gz,
     write_result,
@@ -70,29 +73,28 @@ class InsertionBenchmarkOptions:
     # None: camera masks made from the images (the config's classical backend); N: a segmenter
     # node's masks recorded with the images, outlines off by up to N px (``topic`` backend)
     recorded_masks_px: int | None = None
+    settings: dict = field(default_factory=dict)  # {dotted config key: value} over every scene config (--set)
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | None, attempts: int, keep_logs: bool,
              threads: int, source: str | None = None, scene_name: str = "default",
-             recorded_masks_px: int | None = None) -> dict:
+             recorded_masks_px: int | None = None, settings: dict | None = None) -> dict:
     """One grasp in closed loop with one method; writes and returns its report. ``source``:
     the object file of ``obj`` (default: the built-in object of that name); ``scene_name`` the
-    simulated camera scene (``default`` or ``hard``); ``recorded_masks_px`` as
-    ``InsertionBenchmarkOptions``."""
+    simulated camera scene (``default`` or ``hard``); ``recorded_masks_px`` and ``settings``
+    as ``InsertionBenchmarkOptions``."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.insertion import InsertionOptions, insert, method_config
-    from ..pipelines.simulate import SimulateOptions, scene_options, write_scene_config
+    from ..pipelines.simulate import write_scene_config
     from ..sim.closed_loop import ControllerOptions
 
     run = Path(run_dir)
-    sensors = scene_options(SimulateOptions(), scene_name)
-    if recorded_masks_px is not None:
-        sensors = replace(sensors, mask_topics=True, mask_error_px=recorded_masks_px)
+    sensors = _sensors(scene_name, recorded_masks_px)
     cfg_path = run.parent.parent / "scenes" / obj / "config.yaml"
     if not cfg_path.exists():  # two workers may both write it: the same bytes, written atomically
         write_scene_config(source or obj, cfg_path, sensors)
-    cfg = method_config(load_config(cfg_path), MODALITY_SETS[method], particles, seed)
+    cfg = method_config(load_config(cfg_path, settings), MODALITY_SETS[method], particles, seed)
     options = InsertionOptions(sensors=sensors, controller=ControllerOptions(attempts=attempts))
     t0, c0 = time.perf_counter(), time.process_time()
     result = insert(source or obj, seed, cfg, options, log_dir=run / "logs" if keep_logs else None)
@@ -101,7 +103,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
         "benchmark": {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                       "cpu_seconds": time.process_time() - c0, "particles": cfg.filter.num_particles,
                       "attempts_allowed": attempts, "code": code_fingerprint(), **scene_record(scene_name),
-                      **({} if recorded_masks_px is None else {"recorded_masks_px": recorded_masks_px})},
+                      **({} if recorded_masks_px is None else {"recorded_masks_px": recorded_masks_px}),
+                      **settings_record(settings)},
         "insertion": {
             "success": result.success, "attempts": len(result.attempts), "frames": result.frames,
             "rate_hz": result.rate_hz, "time_to_insert_s": result.time_to_insert_s,
@@ -111,6 +114,16 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
     }
     write_result(run, report)
     return report
+
+
+def _sensors(scene_name: str, recorded_masks_px: int | None):
+    """The simulator's ``SimulateOptions`` of a benchmark's camera scene and masks."""
+    from ..pipelines.simulate import SimulateOptions, scene_options
+
+    sensors = scene_options(SimulateOptions(), scene_name)
+    if recorded_masks_px is not None:
+        sensors = replace(sensors, mask_topics=True, mask_error_px=recorded_masks_px)
+    return sensors
 
 
 def _attempt_record(a) -> dict:
@@ -130,10 +143,13 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
         raise MvtopError(f"methods: unknown {', '.join(unknown)} (expected {', '.join(METHODS)})")
     if options.attempts < 1:
         raise MvtopError(f"attempts: expected at least 1, got {options.attempts}")
+    files = dict(options.object_files)
+    check_settings_apply([files.get(o, o) for o in options.objects], options.settings,
+                         _sensors(options.scene, options.recorded_masks_px))
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
                                               options.first_seed, options.scene, options.import_results, read_results,
-                                              options.summary_only)
+                                              options.summary_only, options.settings)
     stale = sorted({r["benchmark"]["attempts_allowed"] for r in reports.values()} - {options.attempts})
     if stale:
         raise MvtopError(f"{out_dir}: its runs were made with --attempts {stale[0]}, not {options.attempts} "
@@ -143,19 +159,18 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
         raise MvtopError(f"{out_dir}: its runs were made with {_masks_setting(masks.pop())}, not "
                          f"{_masks_setting(options.recorded_masks_px)} (one setting per benchmark folder: give "
                          "another --out)")
-    files = dict(options.object_files)
 
     def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
         o, s, m = key
         return (o, s, m, str(run_dir), options.particles, options.attempts, options.keep_logs, threads, files.get(o),
-                options.scene, options.recorded_masks_px)
+                options.scene, options.recorded_masks_px, options.settings)
 
     seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
                "attempts": options.attempts, "scene": options.scene, "recorded_masks_px": options.recorded_masks_px,
-               "seconds_this_run": round(seconds, 1),
+               "settings": dict(options.settings), "seconds_this_run": round(seconds, 1),
                "runs": len(reports), "runs_requested": len(jobs), "imported_this_run": imported,
                "totals": totals(out_dir, reports), "table": {}}
     for method in options.methods:
@@ -226,7 +241,8 @@ def format_table(summary: dict) -> str:
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs ({summary['poses']} grasps per object x "
              f"{len(objs)} objects x {len(summary['methods'])} methods, up to {summary['attempts']} attempts"
              f"{'' if summary.get('scene', 'default') == 'default' else ', ' + summary['scene'] + ' scene'}"
-             f"{_recorded_masks_note(summary.get('recorded_masks_px'))})"
+             f"{_recorded_masks_note(summary.get('recorded_masks_px'))}"
+             f"{', ' + settings_text(summary['settings']) if summary.get('settings') else ''})"
              f"{'' if done else ': not complete'}; code {codes}.", ""]
 
     def table(title: str, cell: Callable[[dict], float | None], fmt: str, average: bool) -> None:

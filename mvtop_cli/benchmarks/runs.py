@@ -2,8 +2,9 @@
 ``runs/<name>/result.json`` per finished run, so that an interrupted benchmark resumes where it
 stopped; the runs made on the batch engine (``batch/engine.py``: local processes or Ray tasks)
 with progress; each invocation's wall time in ``invocations.jsonl``; the fingerprint of the
-code that made a run; one simulated camera scene per folder (``check_scene``); and the compact,
-byte-reproducible ``results.jsonl.gz``.
+code that made a run; one simulated camera scene and one set of config settings (``--set``) per
+folder (``check_scene``, ``check_settings``); and the compact, byte-reproducible
+``results.jsonl.gz``.
 """
 
 from __future__ import annotations
@@ -13,10 +14,11 @@ import gzip
 import hashlib
 import json
 import os
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Callable, Hashable
+from typing import Any, Callable, Hashable, Mapping
 
 from ..errors import MvtopError
 from ..io.atomic import atomic_output
@@ -50,14 +52,15 @@ def finished_runs(jobs: list[tuple[Hashable, Path]]) -> tuple[dict, list[tuple[H
 
 
 def plan_runs(out_dir: Path, objects, methods, poses: int, first_seed: int, scene: str,
-              import_results: Path | None, read_results: Callable[[Path], list[dict]], summary_only: bool
+              import_results: Path | None, read_results: Callable[[Path], list[dict]], summary_only: bool,
+              settings: Mapping[str, Any] | None = None
               ) -> tuple[list[tuple[Hashable, Path]], dict, list[tuple[Hashable, Path]], int]:
     """A benchmark's runs in ``out_dir/runs``: every (object, seed, method) job in grasp-major
     order (a partial benchmark holds the same grasps of every object and method, so its tables
     compare like with like), the records of ``import_results`` (read by ``read_results``)
-    written as their results, the finished reports checked for one camera ``scene``, and the
-    jobs still to run (none with ``summary_only``, which needs a finished run). Returns
-    ``(jobs, reports, todo, imported)``."""
+    written as their results, the finished reports checked for one camera ``scene`` and one
+    set of config ``settings``, and the jobs still to run (none with ``summary_only``, which
+    needs a finished run). Returns ``(jobs, reports, todo, imported)``."""
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [((obj, first_seed + i, method), out_dir / "runs" / f"{obj}_{first_seed + i}_{method}")
             for i in range(poses) for obj in objects for method in methods]
@@ -66,6 +69,7 @@ def plan_runs(out_dir: Path, objects, methods, poses: int, first_seed: int, scen
         imported = import_records(Path(import_results), read_results(Path(import_results)), jobs)
     reports, todo = finished_runs(jobs)
     check_scene(out_dir, reports, scene)
+    check_settings(out_dir, reports, settings or {})
     if summary_only:
         todo = []
         if not reports:
@@ -89,6 +93,53 @@ def check_scene(out_dir: Path, reports: dict, scene: str) -> None:
         if made_in != scene:
             raise MvtopError(f"{out_dir}: holds runs of the {made_in!r} scene, not {scene!r} "
                              "(expected one scene per benchmark folder: give another --out)")
+
+
+def settings_record(settings: Mapping[str, Any] | None) -> dict:
+    """What a run's ``benchmark`` record notes of the config settings it ran with (``--set``,
+    ``config.parse_settings``): nothing without any, so records made before settings existed
+    read as runs without."""
+    return {"settings": dict(settings)} if settings else {}
+
+
+def settings_text(settings: Mapping[str, Any] | None) -> str:
+    """``--set KEY=VALUE ...`` as a command line would give ``settings``, or ``no --set``."""
+    if not settings:
+        return "no --set"
+    return " ".join(f"--set {k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in settings.items())
+
+
+def check_settings(out_dir: Path, reports: dict, settings: Mapping[str, Any]) -> None:
+    """A benchmark folder holds the runs of one set of config settings: a finished (or
+    imported) run made with other ``--set`` values than ``settings`` is an error naming the
+    folder and both."""
+    for report in reports.values():
+        made = report.get("benchmark", {}).get("settings", {})
+        if made != dict(settings):
+            raise MvtopError(f"{out_dir}: its runs were made with {settings_text(made)}, not {settings_text(settings)} "
+                             "(one setting per benchmark folder: give another --out)")
+
+
+def check_settings_apply(sources, settings: Mapping[str, Any] | None, sensors=None) -> None:
+    """Each object's scene config, as a benchmark writes it (``sources``: object names or
+    object files; ``sensors``: ``pipelines.simulate.SimulateOptions``), must load with
+    ``settings`` over it: an unknown key or a bad value stops the benchmark before any run,
+    with the config loader's message on ``--set``."""
+    if not settings:
+        return
+    from ..config import load_config
+    from ..errors import ConfigError
+    from ..pipelines.simulate import write_scene_config
+
+    with tempfile.TemporaryDirectory(prefix="mvtop-settings-") as tmp:
+        for source in sources:
+            path = Path(tmp) / "config.yaml"
+            write_scene_config(source, path, sensors)
+            try:
+                load_config(path, settings)
+            except ConfigError as err:
+                message = str(err).removeprefix(f"{path}: ")  # (apply_settings' own errors name --set)
+                raise ConfigError(message if message.startswith("--set") else f"--set: {message}") from None
 
 
 def run_jobs(fn: Callable, todo: list[tuple[Hashable, Path]], args_of: Callable[[Hashable, Path, int], tuple],

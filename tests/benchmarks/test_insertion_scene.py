@@ -1,6 +1,7 @@
-"""``mvtop benchmark insertion --scene`` and ``--recorded-masks-px``: one simulated camera scene
-and one source of camera masks per benchmark folder, as for ``benchmark accuracy`` (the scene
-check is ``benchmarks.runs.check_scene``, shared by both)."""
+"""``mvtop benchmark insertion --scene``, ``--recorded-masks-px`` and ``--set``: one simulated
+camera scene, one source of camera masks and one set of config settings per benchmark folder, as
+for ``benchmark accuracy`` (the scene and settings checks are ``benchmarks.runs.check_scene`` and
+``check_settings``, shared by both)."""
 
 from __future__ import annotations
 
@@ -75,3 +76,35 @@ def test_the_summary_names_recorded_masks():
     assert format_table(summary).splitlines()[0] == (
         "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts, camera masks recorded by a "
         "simulated segmenter (outlines off by up to 1 px)); code abc (1 runs).")
+
+
+@pytest.mark.parametrize("made_with, asked, message", [
+    (None, {"contact.softness_m": 5e-5}, "no --set, not --set contact.softness_m=5e-05"),
+    ({"contact.softness_m": 5e-5}, {}, "--set contact.softness_m=5e-05, not no --set"),
+    ({"contact.softness_m": 5e-5}, {"contact.softness_m": 1e-4}, "--set contact.softness_m=5e-05, not --set "
+                                                                 "contact.softness_m=0.0001"),
+])
+def test_a_folder_of_other_settings_is_refused_before_any_run(tmp_path, made_with, asked, message):
+    made = {} if made_with is None else {"settings": made_with}
+    assert _refused(tmp_path, made, settings=asked) == (
+        f"{tmp_path}: its runs were made with {message} (one setting per benchmark folder: give another --out)")
+
+
+def test_a_setting_no_scene_config_takes_is_refused_before_the_folder_exists(tmp_path):
+    from mvtop_cli.errors import ConfigError
+
+    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",),
+                                        settings={"contact.softnes_m": 5e-5})
+    with pytest.raises(ConfigError) as info:
+        run_insertion_benchmark(tmp_path / "out", options)
+    assert str(info.value) == "--set: contact.softnes_m: unknown key (did you mean 'softness_m'?)"
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_summary_names_the_settings():
+    summary = {"objects": ["cube"], "poses": 1, "methods": ["M-VTOP"], "attempts": 3, "scene": "default",
+               "settings": {"contact.softness_m": 5e-5, "masking.camera.backend": "grabcut"}, "runs": 1,
+               "runs_requested": 1, "totals": {"code_versions": {"abc": 1}}, "table": {}}
+    assert format_table(summary).splitlines()[0] == (
+        "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts, --set contact.softness_m=5e-05 "
+        "--set masking.camera.backend=grabcut); code abc (1 runs).")
