@@ -354,12 +354,19 @@ class SearchConfig:
     rival_translation_m: float = field(default=0.001, metadata=_rng(
         0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
     rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
+    check_at_contact: bool = field(default=False, metadata={
+        "doc": "with the contact modality, also run the rival and mode checks on the first frame of each contact (a "
+               "frame in contact after one without, not the first frame): a part that a wrong mode stopped on the "
+               "receptacle's rim is searched for while the contact says where it is"})
     mode_check: bool = field(default=True, metadata={
         "doc": "with touch and camera proposals (not recorded masks or colour evidence), each rival check also "
                "searches the grasp prior with every pose choosing its own camera mask among the belief-free proposals "
                "(Algorithm 2 per pose); when that search's best pose lies beyond rival_translation_m / "
-               "rival_rotation_deg and beats the estimate by recheck_margin nats, the belief is in a wrong mode whose "
+               "rival_rotation_deg and beats the estimate by mode_margin nats, the belief is in a wrong mode whose "
                "own masks agree with it: the frame is redone from the searched poses (flag mode_switch)"})
+    mode_margin: float = field(default=10.0, metadata=_rng(
+        0.0, 1e6, doc="nats by which the mode check's best pose, and then the frame redone from it, must beat the "
+                      "estimate to replace it (the other searches use recheck_margin)"))
     mode_init_factor: int = field(default=2, metadata=_rng(
         1, 1000, doc="prior samples per particle in the mode check's search (a far better mode is found with fewer "
                      "than the first frame's search needs to place the estimate)"))

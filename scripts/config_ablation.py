@@ -14,20 +14,11 @@ import json
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from mvtop_cli.benchmarks.accuracy import MODALITY_SETS
-from mvtop_cli.config import load_config
+from mvtop_cli.config import load_config, parse_settings
 from mvtop_cli.pipelines.estimate import EstimateOptions, estimate
 from mvtop_cli.pipelines.evaluate import evaluate
-
-
-def override(config: dict, key: str, value: str) -> None:
-    d = config
-    *parents, last = key.split(".")
-    for p in parents:
-        d = d.setdefault(p, {})
-    d[last] = yaml.safe_load(value)
 
 
 def main() -> None:
@@ -38,6 +29,7 @@ def main() -> None:
     ap.add_argument("overrides", nargs="+", metavar="KEY=VALUE")
     ap.add_argument("--scenes", default="")
     a = ap.parse_args()
+    settings = parse_settings(a.overrides, "KEY=VALUE")
     scenes = sorted(p.name for p in (a.bench / "scenes").iterdir())
     if a.scenes:
         scenes = [s for s in scenes if s in a.scenes.split(",")]
@@ -45,13 +37,8 @@ def main() -> None:
     for name in scenes:
         scene, run = a.bench / "scenes" / name, a.out / f"{name}_{a.method}"
         if not (run / "result.json").exists():
-            config = yaml.safe_load((scene / "config.yaml").read_text())
-            for item in a.overrides:
-                override(config, *item.split("=", 1))
-            path = scene / f"config_{a.out.name}.yaml"  # beside the scene: mesh paths are relative to it
-            path.write_text(yaml.safe_dump(config))
             seed = int(name.rsplit("_", 1)[1])
-            estimate(scene / "log.mcap", load_config(path), run,
+            estimate(scene / "log.mcap", load_config(scene / "config.yaml", settings), run,
                      EstimateOptions(modalities=MODALITY_SETS[a.method], num_particles=None, seed=seed))
             report = evaluate(run, scene / "log.mcap", None, run / "eval")
             (run / "result.json").write_text(json.dumps({"final": report["final"]}))

@@ -16,11 +16,12 @@ disagrees with the estimate the others agree on adds the dissent search's poses 
 (``search.dissent``): the poses it explains, before the consistency watch scales it down.
 Every ``search.rival_every`` frames a fresh search of the prior, with a generator of its own,
 looks for another pose that explains the frame about as well as the estimate (a rival mode):
-it changes no estimate, only the reported covariance and the warnings. Before it, with touch
+it changes no estimate, only the reported covariance and the warnings (with
+``search.check_at_contact`` also on the first frame of each contact). Before it, with touch
 and camera proposals, the mode check (``search.mode_check``) searches the prior with every pose
 choosing its own camera masks among the belief-free proposals (``likelihood.ProposalLikelihood``):
 the frame's masks were chosen by the belief, so a belief in a wrong mode explains them best;
-when a far pose beats the estimate by ``search.recheck_margin`` on equal terms, the frame is
+when a far pose beats the estimate by ``search.mode_margin`` on equal terms, the frame is
 redone from the searched poses, with masks they choose.
 """
 
@@ -151,6 +152,7 @@ class Estimator:
         self.use_contact = "contact" in cfg.modalities
         self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
         self.rival: RivalMode | None = None  # the last rival check's finding
+        self.in_contact = False  # the last frame's contact state (search.check_at_contact)
 
     @classmethod
     def from_config(cls, cfg: Config, frame_pose: Callable[[str, int], np.ndarray] | None = None) -> Estimator:
@@ -177,11 +179,14 @@ class Estimator:
             self.particles = self.prior.sample(self.cfg.filter.num_particles, self.rng)
         ps = self.particles
         contact = frame.contact if self.use_contact else None
+        due = self._check_due(frame.index) or (self.cfg.search.check_at_contact and bool(contact) and not first
+                                               and not self.in_contact)
+        self.in_contact = bool(contact)
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
         result = self._assimilate(ps, first, contact, bool(observation.sensors), likelihood)
-        checked = (self.cfg.search.mode_check and self._check_due(frame.index) and bool(observation.cameras)
+        checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
         switch = self._mode_check(frame, result, likelihood, contact) if checked else None
         if switch is not None:
@@ -227,7 +232,7 @@ class Estimator:
         suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
         if suspect:
             flags.append("suspect_estimate")
-        if self._check_due(frame.index) and evidence is not None:
+        if due and evidence is not None:
             rival, ruled_out = self._rival_check(frame.index, likelihood, result.estimate)
             if rival is not None:
                 warnings.append(rival.warning())
@@ -268,12 +273,14 @@ class Estimator:
     def resume_after(self, last: FrameEstimate) -> None:
         """Continue after frame ``last`` with the state it carried over: the sensor consistency
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
-        same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``) and
-        the last rival check's finding (``FrameEstimate.rival``)."""
+        same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
+        the last rival check's finding (``FrameEstimate.rival``) and the contact state
+        (``search.check_at_contact``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
         self.rival = last.rival
+        self.in_contact = bool(last.contact) and self.use_contact
 
     def _check_due(self, index: int) -> bool:
         """Whether frame ``index`` has the rival and mode checks (every ``search.rival_every``)."""
@@ -377,7 +384,7 @@ class Estimator:
         (``ProposalLikelihood``); only on frames with touch as well as camera proposals. When
         its best pose lies farther from the estimate than ``search.rival_translation_m`` /
         ``rival_rotation_deg`` (after the part's symmetries) and beats it by more than
-        ``search.recheck_margin`` nats, the frame is redone
+        ``search.mode_margin`` nats, the frame is redone
         from the searched population: the camera masks chosen again with those poses as the
         belief, the consistency watch's verdicts forgotten (they judged the sensors against the
         old mode), and the refinement run on the new likelihood. The redo is kept when its
@@ -402,7 +409,7 @@ class Estimator:
         at_estimate = float(bounded(result.estimate[None])[0])
         moved, turned, same = self._distance(poses[int(np.argmax(ll))], result.estimate)
         better = float(np.max(ll)) - at_estimate
-        if better <= s.recheck_margin or same:
+        if better <= s.mode_margin or same:
             return None
         t0 = time.perf_counter()
         generator = self.rng.bit_generator.state
@@ -414,7 +421,7 @@ class Estimator:
         redo = self.pf.refine(start, redo_likelihood, f.refine_iterations * s.first_frame_iteration_factor)
         self._search_s += time.perf_counter() - t0
         gain = float(bounded(redo.estimate[None])[0]) - at_estimate
-        if gain <= s.recheck_margin:
+        if gain <= s.mode_margin:
             self.consistency.factors, self.consistency.streak = saved
             self.rng.bit_generator.state = generator
             return None

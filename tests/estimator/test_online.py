@@ -141,3 +141,27 @@ def test_a_rival_stands_until_a_check_finds_the_estimates_own_mode(monkeypatch):
     assert [s.rival for s in steps] == [None, rival, rival, rival, rival, None]
     assert ["rival_mode" in s.flags for s in steps] == [False, True, True, True, True, False]
     assert [w["frame"] for s in steps for w in s.warnings if w["kind"] == "rival_mode"] == [1]
+
+
+@pytest.mark.parametrize("at_contact, checked", [(False, []), (True, [2, 5])])
+def test_the_checks_run_at_each_contact_onset_when_asked(monkeypatch, at_contact, checked):
+    """``search.check_at_contact``: the rival (and mode) checks also run on the first frame of
+    each contact, a frame in contact after one without (a stalled descent in closed loop),
+    not on the frames that stay in contact nor on the first frame."""
+    seen = []
+
+    def record(self, index, likelihood, T):
+        seen.append(index)
+        return None, False
+
+    monkeypatch.setattr(Estimator, "_rival_check", record)
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40),
+                  search=replace(cfg.search, rival_every=0, mode_check=False, check_at_contact=at_contact))
+    contact = [True, False, True, True, False, True]
+    with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        for (frame, _), touching in zip(zip(reader, range(6)), contact):
+            estimator.step(replace(frame, contact=touching))
+    assert seen == checked
