@@ -107,19 +107,24 @@ def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_fav
     free = ProposalLikelihood(estimator.last_likelihood, estimator.observations.proposal_sets(frame))
     assert free.cameras == ["front", "side"]
     scored = free(both)
-    assert scored[1] > scored[0] + cfg.search.recheck_margin  # on equal terms the truth wins
+    assert scored[1] > scored[0] + cfg.search.mode_margin  # on equal terms the truth wins
 
     checked, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 8)
     for (p, _, _), (c, _, _) in zip(plain[:3], checked[:3]):
         np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
     switch = [w for w in checked[3][0].warnings if w["kind"] == "mode_switch"]
-    assert len(switch) == 1 and switch[0]["nats_better"] > cfg.search.recheck_margin
+    assert len(switch) == 1 and switch[0]["nats_better"] > cfg.search.mode_margin
     assert "mode_switch" in checked[3][0].flags
     errors = np.array([_errors(c, T) for c, T, _ in checked[3:]])
     assert np.all(errors < [1.0, 2.0]), errors  # from 1.7 mm / 20 deg off
     assert np.all(errors[-1] < [0.3, 0.5]), errors  # and closing in on the truth
     assert not any("sensor_downweighted" in c.flags for c, _, _ in checked)  # the left pad keeps its weight
     assert not any("mode_switch" in c.flags for c, _, _ in checked[4:])  # the check at frame 7 finds nothing better
+    # search.mode_margin, not recheck_margin, is the mode check's bar: above the truth's lead, no switch
+    strict = replace(cfg.search, mode_check=True, mode_margin=scored[1] - scored[0] + 100.0)
+    unmoved, _ = _steps(log_path, replace(cfg, search=strict), 4)
+    assert not any("mode_switch" in c.flags for c, _, _ in unmoved)
+    assert all(_errors(c, T)[1] > 10.0 for c, T, _ in unmoved)
 
 
 def test_without_touch_the_mode_check_does_not_run(scene):
