@@ -42,8 +42,8 @@ from .runs import (
     read_jsonl,
     run_jobs,
     scene_record,
+    settings_note,
     settings_record,
-    settings_text,
     totals,
     write_jsonl_gz,
     write_result,
@@ -343,7 +343,7 @@ def _header_lines(summary: dict) -> list[str]:
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
              f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
              f"{len(summary['methods'])} methods"
-             f"{', ' + settings_text(summary['settings']) if summary.get('settings') else ''})"
+             f"{settings_note(summary.get('settings'))})"
              f"{'' if done else ': not complete'}; code {codes}.",
              f"Time: {wall}the runs (estimate + eval) added up to {format_duration(t['run_seconds_sum'])} wall and "
              f"{format_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]

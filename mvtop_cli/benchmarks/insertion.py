@@ -43,8 +43,8 @@ from .runs import (
     read_jsonl,
     run_jobs,
     scene_record,
+    settings_note,
     settings_record,
-    settings_text,
     totals,
     write_jsonl_gz,
     write_result,
@@ -242,7 +242,7 @@ def format_table(summary: dict) -> str:
              f"{len(objs)} objects x {len(summary['methods'])} methods, up to {summary['attempts']} attempts"
              f"{'' if summary.get('scene', 'default') == 'default' else ', ' + summary['scene'] + ' scene'}"
              f"{_recorded_masks_note(summary.get('recorded_masks_px'))}"
-             f"{', ' + settings_text(summary['settings']) if summary.get('settings') else ''})"
+             f"{settings_note(summary.get('settings'))})"
              f"{'' if done else ': not complete'}; code {codes}.", ""]
 
     def table(title: str, cell: Callable[[dict], float | None], fmt: str, average: bool) -> None:

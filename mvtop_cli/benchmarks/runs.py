@@ -109,6 +109,11 @@ def settings_text(settings: Mapping[str, Any] | None) -> str:
     return " ".join(f"--set {k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in settings.items())
 
 
+def settings_note(settings: Mapping[str, Any] | None) -> str:
+    """What a table's header adds for a folder's settings: ``", --set KEY=VALUE ..."``, or nothing."""
+    return f", {settings_text(settings)}" if settings else ""
+
+
 def check_settings(out_dir: Path, reports: dict, settings: Mapping[str, Any]) -> None:
     """A benchmark folder holds the runs of one set of config settings: a finished (or
     imported) run made with other ``--set`` values than ``settings`` is an error naming the
