@@ -8,6 +8,7 @@ degrees, ``_s`` seconds); inside mvtop everything is SI.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import math
@@ -821,13 +822,11 @@ def parse_settings(items: typing.Sequence[str], option: str = "--set") -> dict[s
     return settings
 
 
-def apply_settings(data: Any, settings: typing.Mapping[str, Any], option: str = "--set") -> Any:
+def apply_settings(data: Any, settings: typing.Mapping[str, Any]) -> Any:
     """A copy of parsed YAML config ``data`` with each dotted key of ``settings`` set to its
     value (``parse_settings``); a missing section is created, so that an unknown key reaches
     ``parse_config``'s did-you-mean check. A key that passes through a value that is not a
-    section (or a list index out of range) is a ``ConfigError`` naming it."""
-    import copy
-
+    section (or a list index out of range) is a ``ConfigError`` naming it (as ``--set KEY``)."""
     data = copy.deepcopy(data) if data is not None else {}
     for key, value in settings.items():
         parts = key.split(".")
@@ -837,7 +836,7 @@ def apply_settings(data: Any, settings: typing.Mapping[str, Any], option: str = 
             where = ".".join(parts[:depth]) or "the config"
             if isinstance(node, list):
                 if not part.isdigit() or int(part) >= len(node):
-                    raise ConfigError(f"{option} {key}: {where} is a list of {len(node)}; expected an index "
+                    raise ConfigError(f"--set {key}: {where} is a list of {len(node)}; expected an index "
                                       f"0-{len(node) - 1}, got {part!r}")
                 index: Any = int(part)
             elif isinstance(node, dict):
@@ -845,7 +844,7 @@ def apply_settings(data: Any, settings: typing.Mapping[str, Any], option: str = 
                 if not last and node.get(part) is None:
                     node[part] = {}
             else:
-                raise ConfigError(f"{option} {key}: {where} is a value, not a section")
+                raise ConfigError(f"--set {key}: {where} is a value, not a section")
             if last:
                 node[index] = value
             else:
