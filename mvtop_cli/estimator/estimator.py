@@ -179,8 +179,7 @@ class Estimator:
             self.particles = self.prior.sample(self.cfg.filter.num_particles, self.rng)
         ps = self.particles
         contact = frame.contact if self.use_contact else None
-        due = self._check_due(frame.index) or (self.cfg.search.check_at_contact and bool(contact) and not first
-                                               and not self.in_contact)
+        due = self._check_due(frame.index, onset=bool(contact) and not first and not self.in_contact)
         self.in_contact = bool(contact)
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
@@ -282,10 +281,12 @@ class Estimator:
         self.rival = last.rival
         self.in_contact = bool(last.contact) and self.use_contact
 
-    def _check_due(self, index: int) -> bool:
-        """Whether frame ``index`` has the rival and mode checks (every ``search.rival_every``)."""
-        every = self.cfg.search.rival_every
-        return bool(every) and (index + 1) % every == 0
+    def _check_due(self, index: int, onset: bool) -> bool:
+        """Whether frame ``index`` has the rival and mode checks: every ``search.rival_every``
+        frames, and with ``search.check_at_contact`` on a contact ``onset`` (a frame in contact
+        after one without, not the first frame)."""
+        s = self.cfg.search
+        return (bool(s.rival_every) and (index + 1) % s.rival_every == 0) or (s.check_at_contact and onset)
 
     def _evidence(self, likelihood: Likelihood, T_ee_object: np.ndarray, sensor_iou: dict[str, float],
                   observed: bool) -> EvidenceReport | None:
