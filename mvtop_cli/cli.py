@@ -775,7 +775,7 @@ def benchmark_scene_option():
 def benchmark_settings_option():
     """``--set KEY=VALUE`` (repeatable): config settings over every scene config of a benchmark."""
     return click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-                        help="Change one config setting in every run, e.g. --set contact.softness_m=5.0e-05 "
+                        help="Change one config setting in every run, e.g. --set contact.softness_m=1.0e-04 "
                              "(a dotted config key, a YAML value; repeatable). Recorded with each run; one set of "
                              "settings per --out folder.")
 

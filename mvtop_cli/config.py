@@ -251,10 +251,10 @@ class MaskingConfig:
     colour_margin_px: float = field(default=24.0, metadata=_rng(
         0.0, 1000.0, doc="with camera_evidence: colour, image pixels around the grasp prior's window from which "
                          "the background histogram is learned too"))
-    belief_band_px: int = field(default=0, metadata=_rng(
-        0, 64, doc="the belief's GrabCut proposal leaves at least this many ROI pixels on either side of the "
-                   "belief's outline to the image's colours and edges (0: only where the likely poses disagree, "
-                   "so a tight belief draws its own outline)"))
+    belief_band_px: int = field(default=1, metadata=_rng(
+        0, 64, doc="with grabcut_prompt: belief, the belief's GrabCut proposal leaves at least this many ROI pixels "
+                   "on either side of the belief's outline to the image's colours and edges (0: only where the likely "
+                   "poses disagree, so a tight belief draws its own outline)"))
     contact_exclusion_m: float | None = field(default=None, metadata=_rng(
         0.0, 0.05, doc="camera pixels that show a world-fixed colliding environment surface (the receptacle) within "
                        "this distance [m] of the box the grasp prior spans carry no evidence: left out of the "
@@ -355,7 +355,7 @@ class SearchConfig:
     rival_translation_m: float = field(default=0.001, metadata=_rng(
         0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
     rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
-    check_at_contact: bool = field(default=False, metadata={
+    check_at_contact: bool = field(default=True, metadata={
         "doc": "with the contact modality, also run the rival and mode checks on the first frame of each contact (a "
                "frame in contact after one without, not the first frame): a part that a wrong mode stopped on the "
                "receptacle's rim is searched for while the contact says where it is"})
@@ -365,7 +365,7 @@ class SearchConfig:
                "(Algorithm 2 per pose); when that search's best pose lies beyond rival_translation_m / "
                "rival_rotation_deg and beats the estimate by mode_margin nats, the belief is in a wrong mode whose "
                "own masks agree with it: the frame is redone from the searched poses (flag mode_switch)"})
-    mode_margin: float = field(default=10.0, metadata=_rng(
+    mode_margin: float = field(default=5.0, metadata=_rng(
         0.0, 1e6, doc="nats by which the mode check's best pose, and then the frame redone from it, must beat the "
                       "estimate to replace it (the other searches use recheck_margin)"))
     mode_init_factor: int = field(default=2, metadata=_rng(
@@ -451,7 +451,7 @@ class ContactConfig:
     factor under contact (tau_p, sigma_p; beyond the paper)."""
 
     margin_m: float = field(default=0.0, metadata=_rng(-0.01, 0.01))
-    softness_m: float = field(default=0.0002, metadata=_rng(0.0, 0.01, lo_open=True))
+    softness_m: float = field(default=0.00005, metadata=_rng(0.0, 0.01, lo_open=True))
     sdf_resolution_m: float = field(default=0.00025, metadata=_rng(0.0, 0.01, lo_open=True))
     penetration_tolerance_m: float = field(default=0.0001, metadata=_rng(
         0.0, 0.01, doc="under contact, a pose sunk this deep into the environment loses half its weight "
@@ -806,7 +806,7 @@ def parse_settings(items: typing.Sequence[str], option: str = "--set") -> dict[s
         parts = key.split(".")
         if not sep or not key or not all(parts):
             raise ConfigError(f"{option}: expected KEY=VALUE with a dotted config key, e.g. "
-                              f"contact.softness_m=5.0e-05, got {item!r}")
+                              f"contact.softness_m=1.0e-04, got {item!r}")
         try:
             value = yaml.safe_load(text) if text.strip() else None
         except yaml.YAMLError:

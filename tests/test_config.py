@@ -208,11 +208,11 @@ def test_settings_are_read_as_yaml_values_with_exponents_as_floats():
 
 
 @pytest.mark.parametrize("item, message", [
-    ("contact.softness_m", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, "
+    ("contact.softness_m", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=1.0e-04, "
                            "got 'contact.softness_m'"),
-    ("contact..softness_m=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, "
+    ("contact..softness_m=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=1.0e-04, "
                               "got 'contact..softness_m=1'"),
-    ("=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=5.0e-05, got '=1'"),
+    ("=1", "--set: expected KEY=VALUE with a dotted config key, e.g. contact.softness_m=1.0e-04, got '=1'"),
     ("filter.temperature=[1", "--set filter.temperature: expected a YAML value, got '[1'"),
 ])
 def test_a_malformed_setting_is_one_line_naming_it(item, message):
@@ -233,11 +233,11 @@ def test_a_setting_given_twice_is_refused():
 def test_settings_override_the_file_and_reach_the_typed_config(cfg_dir):
     path = cfg_dir / "config.yaml"
     path.write_text(BASE)
-    cfg = load_config(path, {"contact.softness_m": 5e-5, "filter.num_particles": 800,
+    cfg = load_config(path, {"contact.softness_m": 1e-4, "filter.num_particles": 800,
                              "sensors.cameras.0.name": "top"})
-    assert cfg.contact.softness_m == 5e-5 and cfg.filter.num_particles == 800
+    assert cfg.contact.softness_m == 1e-4 and cfg.filter.num_particles == 800
     assert cfg.sensors.cameras[0].name == "top"
-    assert load_config(path).contact.softness_m != 5e-5  # the file itself is unchanged
+    assert load_config(path).contact.softness_m != 1e-4  # the file itself is unchanged
     assert yaml.safe_load(path.read_text()) == yaml.safe_load(BASE)
 
 

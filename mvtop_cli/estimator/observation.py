@@ -352,12 +352,13 @@ class ObservationModel:
                 OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
             if self.cfg.masking.grabcut_prompt == "belief":
                 prompt_roi, probability = roi, belief_probability(rendered[name], weights)
+                band_px = self.cfg.masking.belief_band_px  # the belief's own outline is left to the image
             else:
                 prompt_roi, probability = self.prior_coverage(frame, name, img, occluders[name])
+                band_px = 0  # the prior's poses spread wider than any band: no outline of the belief to free
             box = (prompt_roi.x0, prompt_roi.y0, prompt_roi.x0 + prompt_roi.width, prompt_roi.y0 + prompt_roi.height)
             props = list(self.observer.camera_proposals(img, box))
-            grabcut = grabcut_from_belief(prompt_roi.image(img.image), probability, seed=seed,
-                                          band_px=self.cfg.masking.belief_band_px)
+            grabcut = grabcut_from_belief(prompt_roi.image(img.image), probability, seed=seed, band_px=band_px)
             if grabcut is not None:
                 props.insert(0, prompt_roi.paste(grabcut, img.image.shape[:2], fill=False))
             props = [self.clear_contact_pixels(frame, name, p) for p in props]

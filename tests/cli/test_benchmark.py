@@ -196,19 +196,19 @@ def test_benchmark_accuracy_set_changes_the_config_of_every_run_and_binds_the_fo
     out = tmp_path / "bench"
     small = ("benchmark", "accuracy", "--out", str(out), "--objects", "conn2", "--poses", "1", "--methods", "M-TOP",
              "--frames", "4", "--particles", "30")
-    proc = run(*small, "--set", "contact.softness_m=5e-5", "--set", "filter.temperature=0.01")
+    proc = run(*small, "--set", "contact.softness_m=1e-4", "--set", "filter.temperature=0.01")
     assert proc.returncode == 0, proc.stderr
     run_dir = out / "runs" / "conn2_1000_M-TOP"
     resolved = yaml.safe_load((run_dir / "config.resolved.yaml").read_text())
-    assert resolved["contact"]["softness_m"] == 5e-5 and resolved["filter"]["temperature"] == 0.01
+    assert resolved["contact"]["softness_m"] == 1e-4 and resolved["filter"]["temperature"] == 0.01
     scene = yaml.safe_load((out / "scenes" / "conn2_1000" / "config.yaml").read_text())
     assert "softness_m" not in scene.get("contact", {})  # the scene config stays the simulator's own
-    settings = {"contact.softness_m": 5e-5, "filter.temperature": 0.01}
+    settings = {"contact.softness_m": 1e-4, "filter.temperature": 0.01}
     assert json.loads((run_dir / "result.json").read_text())["benchmark"]["settings"] == settings
     assert json.loads((out / "summary.json").read_text())["settings"] == settings
-    assert "--set contact.softness_m=5e-05 --set filter.temperature=0.01)" in proc.stdout
+    assert "--set contact.softness_m=0.0001 --set filter.temperature=0.01)" in proc.stdout
     refused = run(*small)
     assert refused.returncode == 2
-    assert refused.stderr.strip() == (f"mvtop: error: {out}: its runs were made with --set contact.softness_m=5e-05 "
+    assert refused.stderr.strip() == (f"mvtop: error: {out}: its runs were made with --set contact.softness_m=0.0001 "
                                       "--set filter.temperature=0.01, not no --set (one setting per benchmark folder: "
                                       "give another --out)")

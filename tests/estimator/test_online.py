@@ -144,8 +144,8 @@ def test_a_rival_stands_until_a_check_finds_the_estimates_own_mode(monkeypatch):
 
 
 @pytest.mark.parametrize("at_contact, checked", [(False, []), (True, [2, 5])])
-def test_the_checks_run_at_each_contact_onset_when_asked(monkeypatch, at_contact, checked):
-    """``search.check_at_contact``: the rival (and mode) checks also run on the first frame of
+def test_the_checks_run_at_each_contact_onset_when_set(monkeypatch, at_contact, checked):
+    """``search.check_at_contact`` (on by default): the rival (and mode) checks also run on the first frame of
     each contact, a frame in contact after one without (a stalled descent in closed loop),
     not on the frames that stay in contact nor on the first frame."""
     seen = []
