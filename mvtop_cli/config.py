@@ -274,6 +274,11 @@ class MaskingConfig:
     tactile_depth_threshold_m: float = field(default=2e-5, metadata=_rng(
         0.0, 0.01, lo_open=True, doc="indentation below this is undeformed gel (tactile masks from a depth topic, "
                                     "and the rendered tactile masks)"))
+    tactile_depth_tolerance_m: float | None = field(default=None, metadata=_rng(
+        0.0, 0.01, doc="with a tactile depth topic: a pose's gel contact leaves out, as missed, the observed contact "
+                       "pixels it presses deeper than the sensor measured there plus this tolerance [m] (a binary "
+                       "contact mask cannot tell a part pressed deeper from one pressed as measured); null: the "
+                       "masks alone"))
 
 
 @dataclass(frozen=True)

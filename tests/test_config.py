@@ -104,6 +104,15 @@ def test_colour_bins_must_divide_the_channel_range(cfg_dir):
         load_config(path)
 
 
+def test_the_tactile_depth_tolerance_is_off_by_default_and_a_length_when_set(cfg_dir):
+    assert load_config(write(cfg_dir, BASE)).masking.tactile_depth_tolerance_m is None
+    cfg = load_config(write(cfg_dir, BASE, {"masking.tactile_depth_tolerance_m": 5e-5}))
+    assert cfg.masking.tactile_depth_tolerance_m == 5e-5
+    path = write(cfg_dir, BASE, {"masking.tactile_depth_tolerance_m": -1e-5})
+    with pytest.raises(ConfigError, match=r"masking\.tactile_depth_tolerance_m: expected a value >= 0\.0, got -1e-05"):
+        load_config(path)
+
+
 def test_duplicate_sensor_names(cfg_dir):
     path = write(cfg_dir, BASE, {"sensors.tactile": [
         {"name": "front", "image_topic": "/t", "info_topic": "/ti"}]})

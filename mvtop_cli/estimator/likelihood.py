@@ -9,6 +9,12 @@ over the temperature ``tau`` of eq. 1. Eq. 1's softmax normalisation over the pa
 left out: it is a constant within one batch, but poses scored in different calls are compared
 (Metropolis ratios, search elites), so every call must score on the same scale.
 
+Depth. A tactile mask says where the gel is pressed, not how deep: a part pressed deeper
+than the sensor measured, e.g. tilted into one pad about the grasp, renders the same mask.
+With ``masking.tactile_depth_tolerance_m`` and a depth topic, the observed contact pixels a
+pose presses deeper than the measured indentation plus the tolerance are left out of its
+rendered contact, so they count as missed (beyond the paper; ``Likelihood.depth_limit``).
+
 Contact. When the frame reports contact and the scene has a contact model, eq. 9's
 ``log sigma((tau_c - phi) / sigma_d)`` of the signed distance ``phi`` between the object at
 the pose and the fixed environment (eq. 8) is added (``contact.likelihood``), and with it,
@@ -260,9 +266,20 @@ class Likelihood:
             return renderer.score_masks(
                 OBJECT_ID, T, frame.tactile[name].camera, obs.rois[name], obs.masks[name], mode="tactile",
                 gel_distance_m=self.gel_distance_m[name],
-                penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m, observed_outside=obs.outside[name])
+                penetration_threshold_m=self.cfg.masking.tactile_depth_threshold_m, observed_outside=obs.outside[name],
+                depth_limit_m=self.depth_limit(name))
         return renderer.score_masks(OBJECT_ID, T, frame.cameras[name].camera, obs.rois[name], obs.masks[name],
                                     obs.occluders[name], observed_outside=obs.outside[name])
+
+    def depth_limit(self, name: str) -> np.ndarray | None:
+        """Tactile sensor ``name``'s depth (h, w) [m, sensor z] nearer than which a pose presses
+        the gel deeper than measured (``masking.tactile_depth_tolerance_m`` beyond the
+        indentation the sensor measured in each ROI pixel, ``Observation.indentation``); None
+        without a measured indentation."""
+        measured = self.observation.indentation.get(name)
+        if measured is None:
+            return None
+        return self.gel_distance_m[name] - measured - self.cfg.masking.tactile_depth_tolerance_m
 
     def rendered_masks(self, T_ee_object: np.ndarray) -> dict[str, np.ndarray]:
         """Per observed sensor, the mask (h, w) bool rendered at one pose (4, 4) in its ROI,

@@ -136,7 +136,10 @@ class Observation:
     occluders ``(mesh_id, T_sensor_mesh)`` of each camera, the observed mask cropped to the
     ROI (``masks``) and the observed mask area outside the ROI in ROI pixels (``outside``),
     and with the contour term (``edges.gain``) each camera image's derivatives in its ROI
-    (``gradients``: ``edges.EdgeImage``; not for a camera of ``weight`` 0).
+    (``gradients``: ``edges.EdgeImage``; not for a camera of ``weight`` 0). With
+    ``masking.tactile_depth_tolerance_m``, each tactile sensor whose log has its depth topic
+    has ``indentation``: the measured gel indentation [m] in its ROI, the deepest of the image
+    pixels each ROI pixel covers (``Roi.maximum``).
     ``tactile`` and ``cameras`` name the sensors with an observed mask, in the frame's
     order; ``mask_mode`` says how the camera masks were made (``proposals``, ``prompt``,
     ``recorded`` from the log's mask topics, ``colour`` for per-pixel probabilities (h, w)
@@ -150,6 +153,7 @@ class Observation:
     cameras: list[str]
     mask_mode: str
     gradients: dict[str, EdgeImage] = field(default_factory=dict)
+    indentation: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def sensors(self) -> list[str]:
@@ -291,10 +295,12 @@ class ObservationModel:
         rois = self.rois(frame, belief.poses)
         occluders = {name: [] if name in frame.tactile else self.camera_occluders(frame, name)
                      for name in {**frame.cameras, **frame.tactile}}
-        masks, outside = {}, {}
+        masks, outside, indentation = {}, {}, {}
         for name, img in frame.tactile.items():
             full = self.observer.tactile_mask(img)
             masks[name], outside[name] = rois[name].crop(full), rois[name].outside_area(full)
+            if img.depth is not None and self.cfg.masking.tactile_depth_tolerance_m is not None:
+                indentation[name] = rois[name].maximum(img.depth)
         mask_mode = "none"
         if frame.cameras and self.observer.recorded:
             mask_mode = "recorded"
@@ -329,7 +335,7 @@ class ObservationModel:
                 if name not in off:
                     gradients[name] = EdgeImage.of(img.image, rois[name], self.cfg.edges.blur_sigma_px)
         return Observation(rois, occluders, masks, outside, [n for n in frame.tactile if n in masks],
-                           [n for n in frame.cameras if n in masks], mask_mode, gradients)
+                           [n for n in frame.cameras if n in masks], mask_mode, gradients, indentation)
 
     def camera_masks(self, frame: Frame, cameras: dict[str, SensorImage], rois: dict[str, Roi], occluders: dict,
                      candidates: np.ndarray, weights: np.ndarray, seed: int) -> dict[str, tuple[np.ndarray, float]]:

@@ -84,8 +84,10 @@ class MaskRenderer(Protocol):
         penetration_threshold_m: float = 0.0,
         observed_outside: float = 0.0,
         empty_score: float = 1.0,
+        depth_limit_m: np.ndarray | None = None,
     ) -> np.ndarray:
-        """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool in ``roi``."""
+        """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool in ``roi``; the
+        observed pixels a pose comes nearer than ``depth_limit_m`` (h, w) [m] count as missed."""
         ...
 
     def render_tactile(
@@ -222,13 +224,20 @@ class RendererBase(ABC):
         penetration_threshold_m: float = 0.0,
         observed_outside: float = 0.0,
         empty_score: float = 1.0,
+        depth_limit_m: np.ndarray | None = None,
     ) -> np.ndarray:
         """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool, the ROI crop of
         the observed mask (:meth:`Roi.crop`); ``observed_outside`` is the observed area outside
-        the ROI (:meth:`Roi.outside_area`) and ``empty_score`` the score when both are empty."""
+        the ROI (:meth:`Roi.outside_area`) and ``empty_score`` the score when both are empty.
+        ``depth_limit_m`` (h, w) [m]: the pixels of ``observed`` where a pose comes nearer than
+        this (a part pressed deeper into the gel than measured) are left out of its mask, so
+        they count as missed (the union is unchanged)."""
         masks = self.render_masks(
             mesh_id, T_sensor_object, camera, roi, occluders, mode, gel_distance_m, penetration_threshold_m
         )
+        if depth_limit_m is not None:
+            depth = self.render_depth(mesh_id, T_sensor_object, camera, roi, occluders)
+            masks = masks & ~((depth < np.asarray(depth_limit_m)) & np.asarray(observed, dtype=bool))
         return iou_scores(masks, observed, observed_outside, empty_score)
 
     def render_tactile(

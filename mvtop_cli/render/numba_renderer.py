@@ -132,9 +132,11 @@ class NumbaMaskRenderer(RendererBase):
         penetration_threshold_m: float = 0.0,
         observed_outside: float = 0.0,
         empty_score: float = 1.0,
+        depth_limit_m: np.ndarray | None = None,
     ) -> np.ndarray:
         """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool, rendered and
-        counted in one pass; arguments as :meth:`RendererBase.score_masks`."""
+        counted in one pass (a second with ``depth_limit_m``: the observed pixels a pose
+        comes nearer than it); arguments as :meth:`RendererBase.score_masks`."""
         T = self._poses(T_sensor_object)
         mesh = self.mesh(mesh_id)
         plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
@@ -159,6 +161,17 @@ class NumbaMaskRenderer(RendererBase):
                                      area, inter)
         else:  # the byte kernel adds each covered pixel's count: a soft mask's probabilities in 1/255 steps
             raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)), counts, area, inter)
+        if depth_limit_m is not None:
+            if unit != 1:
+                raise ValueError("depth_limit_m needs a bool observed mask")
+            # fragments nearer than the limit (inverse depth above its inverse), within the mask's own threshold
+            limit = np.maximum(1.0 / np.maximum(np.asarray(depth_limit_m, dtype=np.float64).reshape(-1), self.znear_m),
+                               t if use_thr else 0.0)
+            over_area = np.empty(len(T), dtype=np.int64)
+            over = np.empty(len(T), dtype=np.int64)
+            raster.score_masks_kernel(*args, limit, float(limit.min()), True, raster.chunk_count(len(T)), counts,
+                                      over_area, over)
+            area, inter = area - over, inter - over
         return iou_from_counts(area, inter / unit, observed_area + observed_outside, empty_score)
 
     def contour_gradient(

@@ -109,6 +109,19 @@ class Roi:
     def average(self, values: np.ndarray) -> np.ndarray:
         """The full-image map ``values`` (H, W) (e.g. a per-pixel probability) averaged over the
         image pixels each ROI pixel covers: (h, w) float32, zero outside the image."""
+        # INTER_AREA averages exactly the image pixels each ROI pixel covers.
+        return self._reduce(values, lambda win, rows, cols: cv2.resize(win, (cols, rows), interpolation=cv2.INTER_AREA))
+
+    def maximum(self, values: np.ndarray) -> np.ndarray:
+        """The full-image map ``values`` (H, W) reduced to the ROI by the largest value among the
+        image pixels each ROI pixel covers: (h, w) float32, zero outside the image (nearest
+        neighbour when the ROI is upsampled)."""
+        k = max(1, int(round(1.0 / self.scale)))
+        return self._reduce(values, lambda win, rows, cols: win.reshape(rows, k, cols, k).max(axis=(1, 3)))
+
+    def _reduce(self, values: np.ndarray, downsample) -> np.ndarray:
+        """``values`` (H, W) in the ROI window as float32 at ROI resolution: as it is at scale 1,
+        each image pixel repeated when upsampled, ``downsample(window, rows, cols)`` otherwise."""
         win = self._window(np.asarray(values, dtype=np.float32))
         rows, cols = self.shape
         if (rows, cols) == win.shape:
@@ -117,8 +130,7 @@ class Roi:
             # Upsampling: each ROI pixel lies inside one image pixel.
             k = int(round(self.scale))
             return np.repeat(np.repeat(win, k, axis=0), k, axis=1)
-        # INTER_AREA averages exactly the image pixels each ROI pixel covers.
-        return cv2.resize(win, (cols, rows), interpolation=cv2.INTER_AREA)
+        return downsample(win, rows, cols)
 
     def crop(self, mask: np.ndarray, threshold: float = 0.5) -> np.ndarray:
         """Full-image ``mask`` (H, W) bool -> ROI mask (h, w) bool: a ROI pixel is set when at

@@ -118,3 +118,25 @@ def test_the_likelihood_adds_gain_times_the_contour_evidence():
     front_off = replace(on, sensors=replace(on.sensors, cameras=(replace(on.sensors.cameras[0], weight=0.0),
                                                                  *on.sensors.cameras[1:])))
     assert set(_frame_likelihood("cube", front_off)[0].observation.gradients) == {"side"}
+
+
+@pytest.mark.parametrize("name", ["cube", "plug", "conn1", "conn2"])
+def test_the_measured_indentation_rules_out_a_part_pressed_deeper_into_a_pad(name):
+    # The pads squeeze the part 0.4-0.6 mm into the gel, so a pose pressed 0.2 mm deeper into
+    # one pad still covers the same contact patch: its mask alone barely changes. With the
+    # depth topic's indentation (masking.tactile_depth_tolerance_m), that pad's observed contact
+    # counts as missed; at the truth nothing is pressed deeper than measured.
+    cfg = load_config(ROOT / "configs" / f"{name}.yaml")
+    L, T_gt, frame = _frame_likelihood(name, replace(cfg, masking=replace(cfg.masking, tactile_depth_tolerance_m=5e-5)))
+    assert L.observation.tactile == ["left", "right"] and set(L.observation.indentation) == {"left", "right"}
+    for pad in L.observation.tactile:
+        towards_pad = (se3.invert(frame.T_world_ee) @ frame.tactile[pad].T_world_sensor)[:3, 2]
+        pressed = T_gt.copy()
+        pressed[:3, 3] -= 2e-4 * towards_pad  # 0.2 mm nearer the pad's camera: deeper into its gel
+        limited = L.sensor_iou(pad, np.stack([T_gt, pressed]))
+        measured = L.observation.indentation.pop(pad)
+        plain = L.sensor_iou(pad, np.stack([T_gt, pressed]))
+        L.observation.indentation[pad] = measured
+        assert plain[0] > 0.98 and plain[1] > 0.85, (pad, plain)
+        assert limited[0] == pytest.approx(plain[0], abs=1e-3), (pad, limited)
+        assert limited[1] < 0.05, (pad, limited)

@@ -117,3 +117,18 @@ def test_tactile_roi_bounds_the_contact_only(scene, fast):
     )
     # No contact: the whole image, downsampled (less a column or two to tile whole pixels).
     assert none.width > 320 - 1 / none.scale and none.height > 240 - 1 / none.scale
+
+
+def test_maximum_takes_the_deepest_image_pixel_of_each_roi_pixel():
+    values = np.zeros((240, 320), dtype=np.float32)
+    values[100, 151] = 3e-4  # one deep image pixel
+    values[101:103, 150:152] = 1e-4
+    roi = Roi(147, 99, 9, 6, 1 / 3)  # 3 x 2 ROI pixels of 3 x 3 image pixels
+    small = roi.maximum(values)
+    assert small.shape == (2, 3) and small.dtype == np.float32
+    # image rows 99-101 / cols 150-152 form ROI pixel (0, 1); rows 102-104 the one below it
+    np.testing.assert_array_equal(small, np.float32([[0.0, 3e-4, 0.0], [0.0, 1e-4, 0.0]]))
+    assert Roi(0, 0, 320, 240, 1.0).maximum(values)[100, 151] == np.float32(3e-4)
+    up = Roi(150, 100, 2, 2, 2.0).maximum(values)  # upsampled: each image pixel repeated 2 x 2
+    assert up.shape == (4, 4) and (up[:2, 2:] == np.float32(3e-4)).all() and up[:2, :2].max() == 0.0
+    assert Roi(310, 230, 20, 20, 1.0).maximum(values).shape == (20, 20)  # zero beyond the image edge

@@ -79,3 +79,42 @@ def test_render_tactile_matches_render_masks(scene, fast):
     assert masks.any(axis=(1, 2)).all()
     assert (masks != direct).sum() <= 2  # only float32 rounding ties may differ
     assert pen.dtype == np.float32 and pen.min() == 0.0 and pen.max() <= 0.0011
+
+
+def _pressed_box(scene, depth_m: float, tilt_rad: float = 0.0) -> np.ndarray:
+    """A 10 mm cube's face held against the gel, its nearest point ``depth_m`` into it, turned
+    by ``tilt_rad`` about the sensor's x axis (one edge pressed deeper than the other)."""
+    side = 0.010
+    R = se3.rotvec_to_matrix([tilt_rad, 0.0, 0.0])
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * side / 2
+    z_min = (corners @ R.T)[:, 2].min()
+    return se3.make_pose(R, [0.0, 0.0, scene.gel_distance_m - depth_m - z_min])[None]
+
+
+@pytest.mark.parametrize("renderer_name", ["fast", "reference"])
+def test_depth_limit_counts_what_a_pose_presses_deeper_than_measured_as_missed(scene, renderer_name, request):
+    renderer = request.getfixturevalue(renderer_name)
+    side = 0.010
+    renderer.add_mesh("cube10", scene.cube(side).vertices, scene.cube(side).faces)
+    roi = Roi(0, 0, 320, 240, 0.5)
+    kw = dict(mode="tactile", gel_distance_m=scene.gel_distance_m, penetration_threshold_m=2e-5)
+    truth = _pressed_box(scene, 3e-4)
+    _, measured = renderer.render_tactile("cube10", truth, scene.tactile, roi, scene.gel_distance_m,
+                                          penetration_threshold_m=2e-5)
+    observed = measured[0] > 2e-5
+    limit = scene.gel_distance_m - measured[0] - 5e-5
+    # tilted 1 deg about x with its nearest edge at the measured depth: the same contact mask
+    # (the whole face), but one side of it pressed up to 0.17 mm deeper than measured
+    tilted = _pressed_box(scene, 3e-4 + np.radians(1.0) * side, np.radians(1.0))
+    poses = np.concatenate([truth, tilted])
+    plain = renderer.score_masks("cube10", poses, scene.tactile, roi, observed, **kw)
+    limited = renderer.score_masks("cube10", poses, scene.tactile, roi, observed, depth_limit_m=limit, **kw)
+    assert plain[0] > 0.98 and plain[1] > 0.95  # the masks alone barely tell them apart
+    assert limited[0] == pytest.approx(plain[0], abs=1e-9)  # nothing deeper than measured at the truth
+    # its depth runs from the measured 0.30 mm to 0.47 mm across the face: beyond the measured
+    # depth plus 0.05 mm on (0.47 - 0.35) / 0.17 = 71 % of it, so about 0.29 of the face is left
+    assert 0.24 < limited[1] < 0.33
+    shallower = _pressed_box(scene, 1e-4)  # pressed less deep: the limit changes nothing
+    np.testing.assert_allclose(
+        renderer.score_masks("cube10", shallower, scene.tactile, roi, observed, depth_limit_m=limit, **kw),
+        renderer.score_masks("cube10", shallower, scene.tactile, roi, observed, **kw), atol=1e-9)
