@@ -135,8 +135,7 @@ class NumbaMaskRenderer(RendererBase):
         depth_limit_m: np.ndarray | None = None,
     ) -> np.ndarray:
         """IoU (N,) float64 of each pose's mask with ``observed`` (h, w) bool, rendered and
-        counted in one pass (a second with ``depth_limit_m``: the observed pixels a pose
-        comes nearer than it); arguments as :meth:`RendererBase.score_masks`."""
+        counted in one pass; arguments as :meth:`RendererBase.score_masks`."""
         T = self._poses(T_sensor_object)
         mesh = self.mesh(mesh_id)
         plane = self._tactile_plane(mode, gel_distance_m, penetration_threshold_m)
@@ -152,26 +151,24 @@ class NumbaMaskRenderer(RendererBase):
         area = np.empty(len(T), dtype=np.int64)
         inter = np.empty(len(T), dtype=np.int64)
         args = (T, mesh.vertices, mesh.faces, mesh.face_planes, mesh.closed, intr, w, h, self.znear_m)
-        # Runs pay where the observed part covers many pixels per front face (about half the
-        # faces of a closed mesh face the camera) and the threshold is the same everywhere.
         observed_area = float(counts.sum(dtype=np.int64)) / unit
-        if (unit == 1 and t_min == t.max()
-                and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2):
-            raster.score_runs_kernel(*args, t_min, use_thr, raster.chunk_count(len(T)), raster.pack_rows(obs),
-                                     area, inter)
-        else:  # the byte kernel adds each covered pixel's count: a soft mask's probabilities in 1/255 steps
-            raster.score_masks_kernel(*args, t, t_min, use_thr, raster.chunk_count(len(T)), counts, area, inter)
-        if depth_limit_m is not None:
+        use_lim = depth_limit_m is not None
+        lim, lmin = np.zeros(1), np.zeros((1, 1))
+        if use_lim:
             if unit != 1:
                 raise ValueError("depth_limit_m needs a bool observed mask")
-            # fragments nearer than the limit (inverse depth above its inverse), within the mask's own threshold
-            limit = np.maximum(1.0 / np.maximum(np.asarray(depth_limit_m, dtype=np.float64).reshape(-1), self.znear_m),
-                               t if use_thr else 0.0)
-            over_area = np.empty(len(T), dtype=np.int64)
-            over = np.empty(len(T), dtype=np.int64)
-            raster.score_masks_kernel(*args, limit, float(limit.min()), True, raster.chunk_count(len(T)), counts,
-                                      over_area, over)
-            area, inter = area - over, inter - over
+            # the limit as an inverse depth, never below the mask's own threshold
+            lim = np.maximum(1.0 / np.maximum(np.asarray(depth_limit_m, dtype=np.float64).reshape(-1), self.znear_m), t)
+            lmin = raster.limit_blocks(lim.reshape(h, w), obs)
+        # Runs pay where the observed part covers many pixels per front face (about half the
+        # faces of a closed mesh face the camera) and the threshold is the same everywhere.
+        if (unit == 1 and t_min == t.max()
+                and observed_area >= self.RUNS_MIN_PIXELS_PER_FACE * len(mesh.faces) / 2):
+            raster.score_runs_kernel(*args, t_min, use_thr, lim, lmin, use_lim, raster.chunk_count(len(T)),
+                                     raster.pack_rows(obs), counts, area, inter)
+        else:  # the byte kernel adds each covered pixel's count: a soft mask's probabilities in 1/255 steps
+            raster.score_masks_kernel(*args, t, t_min, use_thr, lim, lmin, use_lim, raster.chunk_count(len(T)),
+                                      counts, area, inter)
         return iou_from_counts(area, inter / unit, observed_area + observed_outside, empty_score)
 
     def contour_gradient(

@@ -29,6 +29,14 @@ triangle covers many pixels (measured on the sample logs' tactile masks: 2x fast
 cube, 1.5x for the shaft peg, 1.1x for the plug) and lose on fine meshes and small windows
 (the connectors: 13-19 % slower), so the renderer picks per call (``NumbaMaskRenderer``).
 
+Both kernels can also take a per-pixel *limit* (an inverse depth at least the threshold, e.g.
+a tactile pad's measured indentation): the observed pixels that some fragment comes nearer than
+the limit are taken back from the area and the intersection, once each, in the same pass
+(``_over_limit``). Such a pixel is always in the mask (the fragment passes the threshold too).
+The test is per observed pixel of each row a triangle spans, skipping blocks of
+``LIMIT_BLOCK`` columns where the row's largest inverse depth (at one end, by the same
+monotonicity) does not exceed the block's least limit (``limit_blocks``).
+
 Cost per pose: a transform per vertex, a plane test per face (back faces of closed meshes are
 culled) and roughly 50 ns per front face plus 1-3 ns per covered pixel (with runs: a few word
 stores per row of a triangle) on this machine, so meshes of a few thousand faces keep to tens
@@ -48,9 +56,14 @@ from mvtop_cli.render import _threads  # noqa: F401  (sets OMP_WAIT_POLICY befor
 # Rows of the per-vertex scratch array ``scr``: u, v, 1/z, 1 if z >= znear.
 _U, _V, _IZ, _OK = 0, 1, 2, 3
 
-# What a fragment does (``mode``): set a byte mask, keep the largest inverse depth, or set a
-# bit-packed mask (``bits``, ``nw`` uint64 words a row; the threshold must be constant).
-MODE_MASK, MODE_ZBUF, MODE_BITS = 0, 1, 2
+# What a fragment does (``mode``): set a byte mask, keep the largest inverse depth, set a
+# bit-packed mask (``bits``, ``nw`` uint64 words a row; the threshold must be constant), or
+# either mask and also find the observed pixels some fragment comes nearer than a limit.
+MODE_MASK, MODE_ZBUF, MODE_BITS, MODE_LIMIT, MODE_BITS_LIMIT = 0, 1, 2, 3, 4
+# A byte-mask pixel found nearer than the limit (set pixels are 1).
+_OVER = 2
+# Columns per block of ``limit_blocks``.
+LIMIT_BLOCK = 16
 # Spans shorter than this [pixels] are set pixel by pixel in MODE_BITS.
 _SHORT_RUN = 16
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
@@ -141,15 +154,54 @@ def _span(inv_a, b, c, sa, y, lo, hi):
 
 
 @njit(cache=True, inline="always")
+def _over_limit(mask, obs, lim, lmin, yi, base, a, b, izy, P, u0, bisect):
+    """Mark (``mask`` ``_OVER``) and count the observed pixels ``a .. b`` of row ``yi`` (index
+    ``base + x``), not marked before, whose inverse depth ``izy + P (x - u0)`` is not ``<= lim``.
+    A block of ``LIMIT_BLOCK`` columns is skipped when the row's largest inverse depth in it (at
+    one end: the values are monotone, given ``bisect``) is at most ``lmin``, the block's least
+    limit over its observed pixels (``limit_blocks``)."""
+    n = 0
+    k = a // LIMIT_BLOCK
+    while k * LIMIT_BLOCK <= b:
+        xa = max(a, k * LIMIT_BLOCK)
+        xb = min(b, k * LIMIT_BLOCK + LIMIT_BLOCK - 1)
+        lo_block = lmin[yi, k]
+        k += 1
+        if bisect and max(izy + P * (xa - u0), izy + P * (xb - u0)) <= lo_block:
+            continue
+        for xi in range(xa, xb + 1):
+            idx = base + xi
+            if obs[idx] and mask[idx] != _OVER and not izy + P * (xi - u0) <= lim[idx]:
+                mask[idx] = _OVER
+                n += 1
+    return n
+
+
+def limit_blocks(lim: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """The least of the limit ``lim`` (h, w) over the observed pixels ``obs`` (h, w) of each block
+    of ``LIMIT_BLOCK`` columns of a row: (h, ceil(w / LIMIT_BLOCK)) float64, ``inf`` for a block
+    with none."""
+    h, w = obs.shape
+    nb = -(-w // LIMIT_BLOCK)
+    padded = np.full((h, nb * LIMIT_BLOCK), np.inf)
+    padded[:, :w] = np.where(obs, lim, np.inf)
+    return padded.reshape(h, nb, LIMIT_BLOCK).min(axis=2)
+
+
+@njit(cache=True, inline="always")
 def _raster_triangle(
     u0, v0, iz0, u1, v1, iz1, u2, v2, iz2,
-    width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
+    width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin,
 ):  # fmt: skip
     """Fill one projected triangle. ``MODE_MASK`` sets unset pixels whose fragment passes
     ``thr`` and returns (new pixels, new pixels where ``obs``); ``MODE_ZBUF`` keeps the largest
     inverse depth per pixel in ``zbuf``; ``MODE_BITS`` sets the passing pixels in ``bits``
     (row ``y`` at word ``y * nw``) for a threshold equal to ``thr_min`` everywhere. The last
-    two return (0, 0)."""
+    two return (0, 0). ``MODE_LIMIT`` is ``MODE_MASK`` (``mask`` uint8) with ``zbuf`` a second
+    per-pixel inverse depth, at least ``thr``: an observed pixel (``obs`` 0 or 1) that a fragment
+    comes nearer than it is taken back from both counts, once (``_over_limit``; ``lmin`` the
+    ``limit_blocks`` of ``zbuf`` and ``obs``). ``MODE_BITS_LIMIT`` is ``MODE_BITS`` returning
+    (0, such pixels), ``mask`` (uint8) marking them."""
     if use_thr and max(iz0, max(iz1, iz2)) <= thr_min:
         return 0, 0
     # Pixel-centre bounding box, clipped to the image.
@@ -167,7 +219,8 @@ def _raster_triangle(
     P = 0.0
     Q = 0.0
     zmode = mode == MODE_ZBUF
-    if use_thr or zmode:
+    limit = mode == MODE_LIMIT or mode == MODE_BITS_LIMIT
+    if use_thr or zmode or limit:
         P = ((iz1 - iz0) * (v2 - v0) - (iz2 - iz0) * (v1 - v0)) / area2
         Q = ((u1 - u0) * (iz2 - iz0) - (u2 - u0) * (iz1 - iz0)) / area2
     # Bisection relies on finite, monotone rows (P from a near-degenerate triangle may not be).
@@ -187,7 +240,7 @@ def _raster_triangle(
             continue
         base = yi * iw
         izy = iz0 + Q * (y - v0)
-        if mode == MODE_BITS:
+        if mode == MODE_BITS or mode == MODE_BITS_LIMIT:
             ilo, ihi = int(lo), int(hi)
             row = yi * nw
             if not use_thr:
@@ -205,6 +258,8 @@ def _raster_triangle(
                     if not (izy + P * (xi - u0) <= thr_min):
                         acc |= np.uint64(1) << np.uint64(xi & 63)
                 bits[row + word] |= acc
+            if limit:
+                inter += _over_limit(mask, obs, zbuf, lmin, yi, base, ilo, ihi, izy, P, u0, bisect)
             continue
         for xi in range(int(lo), int(hi) + 1):
             idx = base + xi
@@ -220,13 +275,17 @@ def _raster_triangle(
                 mask[idx] = True
                 area += 1
                 inter += obs[idx]
+        if limit:
+            over = _over_limit(mask, obs, zbuf, lmin, yi, base, int(lo), int(hi), izy, P, u0, bisect)
+            area -= over
+            inter -= over
     return area, inter
 
 
 @njit(cache=True)
 def _raster_pose(
     T, verts, faces, planes, cull, intr, width, height, znear,
-    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, cam, scr,
+    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin, cam, scr,
 ):  # fmt: skip
     """Rasterise the mesh (verts (V, 3) [m], faces (F, 3)) at pose ``T`` (4, 4) in the
     camera's optical frame, with ``intr`` = (fx, fy, cx, cy). With ``cull`` (a closed
@@ -274,14 +333,14 @@ def _raster_pose(
                 scr[i0, _U], scr[i0, _V], scr[i0, _IZ],
                 scr[i1, _U], scr[i1, _V], scr[i1, _IZ],
                 scr[i2, _U], scr[i2, _V], scr[i2, _IZ],
-                width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
+                width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin,
             )  # fmt: skip
             area += a
             inter += b
         elif n_ok > 0.0:
             a, b = _raster_clipped(
                 cam, i0, i1, i2, fx, fy, cx, cy, width, height, znear,
-                thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
+                thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin,
             )  # fmt: skip
             area += a
             inter += b
@@ -291,7 +350,7 @@ def _raster_pose(
 @njit(cache=True)
 def _raster_clipped(
     cam, i0, i1, i2, fx, fy, cx, cy, width, height, znear,
-    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
+    thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin,
 ):  # fmt: skip
     """Rasterise triangle (i0, i1, i2) of camera-frame vertices ``cam`` (V, 3) after clipping
     it at z = znear (Sutherland-Hodgman against one plane; at most a quad, drawn as a fan)."""
@@ -321,7 +380,7 @@ def _raster_clipped(
     for k in range(1, m - 1):
         a, b = _raster_triangle(
             pu[0], pv[0], piz[0], pu[k], pv[k], piz[k], pu[k + 1], pv[k + 1], piz[k + 1],
-            width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw,
+            width, height, thr, thr_min, use_thr, mode, mask, zbuf, obs, bits, nw, lmin,
         )  # fmt: skip
         area += a
         inter += b
@@ -344,13 +403,14 @@ def render_masks_kernel(
     zdummy = np.zeros(1, dtype=np.float32)
     odummy = np.zeros(width * height, dtype=np.uint8)
     bdummy = np.zeros(1, dtype=np.uint64)
+    ldummy = np.zeros((1, 1))
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
             _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_MASK, out[i], zdummy, odummy, bdummy, 0, cam, scr,
+                thr, thr_min, use_thr, MODE_MASK, out[i], zdummy, odummy, bdummy, 0, ldummy, cam, scr,
             )  # fmt: skip
 
 
@@ -366,23 +426,26 @@ def pack_rows(mask: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, parallel=True)
 def score_masks_kernel(
-    poses, verts, faces, planes, cull, intr, width, height, znear, thr, thr_min, use_thr, nchunks, obs, area, inter
-):
+    poses, verts, faces, planes, cull, intr, width, height, znear, thr, thr_min, use_thr, lim, lmin, use_lim, nchunks,
+    obs, area, inter,
+):  # fmt: skip
     """Rendered area and intersection with ``obs`` (h * w,) uint8 per pose, without keeping
-    the masks: (N,) int64 each."""
+    the masks: (N,) int64 each. With ``use_lim`` (``obs`` 0 or 1), the observed pixels where a
+    fragment's inverse depth exceeds ``lim`` (h * w,) (at least ``thr``) are left out of both;
+    ``lmin`` its ``limit_blocks``."""
     n = poses.shape[0]
     nv = verts.shape[0]
-    zdummy = np.zeros(1, dtype=np.float32)
     bdummy = np.zeros(1, dtype=np.uint64)
+    mode = MODE_LIMIT if use_lim else MODE_MASK
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
-        mask = np.empty(width * height, dtype=np.bool_)
+        mask = np.empty(width * height, dtype=np.uint8)
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
-            mask[:] = False
+            mask[:] = 0
             a, b = _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_MASK, mask, zdummy, obs, bdummy, 0, cam, scr,
+                thr, thr_min, use_thr, mode, mask, lim, obs, bdummy, 0, lmin, cam, scr,
             )  # fmt: skip
             area[i] = a
             inter[i] = b
@@ -390,33 +453,36 @@ def score_masks_kernel(
 
 @njit(cache=True, parallel=True)
 def score_runs_kernel(
-    poses, verts, faces, planes, cull, intr, width, height, znear, thr_min, use_thr, nchunks, obs_bits, area, inter
-):
+    poses, verts, faces, planes, cull, intr, width, height, znear, thr_min, use_thr, lim, lmin, use_lim, nchunks,
+    obs_bits, obs, area, inter,
+):  # fmt: skip
     """``score_masks_kernel`` for a threshold ``thr_min`` the same over the window (or none),
     by runs in a bit-packed mask: area and intersection with ``obs_bits`` (``pack_rows``) per
-    pose, (N,) int64 each."""
+    pose, (N,) int64 each. With ``use_lim``, ``score_masks_kernel``'s limit ``lim`` and ``lmin``
+    on the observed pixels ``obs`` (h * w,) uint8."""
     n = poses.shape[0]
     nv = verts.shape[0]
     nw = (width + 63) // 64
-    zdummy = np.zeros(1, dtype=np.float32)
-    mdummy = np.zeros(1, dtype=np.bool_)
-    odummy = np.zeros(1, dtype=np.uint8)
     tdummy = np.zeros(1)
+    mode = MODE_BITS_LIMIT if use_lim else MODE_BITS
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
         bits = np.zeros(height * nw, dtype=np.uint64)
+        over = np.zeros(width * height if use_lim else 1, dtype=np.uint8)
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
-            _raster_pose(
+            _, n_over = _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                tdummy, thr_min, use_thr, MODE_BITS, mdummy, zdummy, odummy, bits, nw, cam, scr,
+                tdummy, thr_min, use_thr, mode, over, lim, obs, bits, nw, lmin, cam, scr,
             )  # fmt: skip
-            a = 0
-            b = 0
+            a = -n_over
+            b = -n_over
             for k in range(height * nw):
                 a += _popcount(bits[k])
                 b += _popcount(bits[k] & obs_bits[k])
                 bits[k] = 0
+            if n_over:
+                over[:] = 0
             area[i] = a
             inter[i] = b
 
@@ -432,11 +498,12 @@ def render_invdepth_kernel(
     mdummy = np.zeros(1, dtype=np.bool_)
     odummy = np.zeros(1, dtype=np.uint8)
     bdummy = np.zeros(1, dtype=np.uint64)
+    ldummy = np.zeros((1, 1))
     for c in prange(nchunks):
         cam = np.empty((nv, 3))
         scr = np.empty((nv, 4))
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
             _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
-                thr, thr_min, use_thr, MODE_ZBUF, mdummy, out[i], odummy, bdummy, 0, cam, scr,
+                thr, thr_min, use_thr, MODE_ZBUF, mdummy, out[i], odummy, bdummy, 0, ldummy, cam, scr,
             )  # fmt: skip

@@ -144,3 +144,33 @@ def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case, kerne
         assert (plain & ~masks).any() and masks.any()  # the wall hides part of the object, not all
     np.testing.assert_array_equal(fused, iou_scores(masks, observed, observed_outside=3.0))
     assert bool(runs) == (kernel == "runs" and "occlu" not in case)
+
+
+@pytest.mark.parametrize("kernel", ["runs", "bytes"])
+def test_fused_depth_limit_takes_back_exactly_the_observed_pixels_pressed_deeper_than_it(scene, fast, kernel,
+                                                                                        monkeypatch):
+    # With a depth limit the fused scores (runs or byte mask, blocks of columns skipped where no
+    # pixel can pass) must leave out exactly the observed pixels whose rendered depth is nearer
+    # than the limit, as the masks and depth maps rendered pixel by pixel say.
+    from mvtop_cli.render import raster
+
+    runs = []
+    real = raster.score_runs_kernel
+    monkeypatch.setattr(raster, "score_runs_kernel", lambda *a: runs.append(1) or real(*a))
+    monkeypatch.setattr(fast, "RUNS_MIN_PIXELS_PER_FACE", 0 if kernel == "runs" else 10**9)
+    rng = np.random.default_rng(12)
+    fast.add_mesh("two_boxes", *(lambda m: (m.vertices, m.faces))(_two_boxes()))
+    camera = scene.tactile
+    T = scene.pressed_poses(rng, fast.mesh("two_boxes").vertices, 48, depth_range_m=(0.0001, 0.001))
+    kw = dict(mode="tactile", gel_distance_m=scene.gel_distance_m, penetration_threshold_m=2e-5)
+    roi = roi_for_particles(fast.mesh("two_boxes"), T, camera)
+    masks = fast.render_masks("two_boxes", T, camera, roi, **kw)
+    depth = fast.render_depth("two_boxes", T, camera, roi)
+    observed = masks[0] ^ (rng.random(masks[0].shape) < 0.05)
+    # a limit that varies pixel to pixel around the poses' depths, beyond the gel in places
+    limit = (scene.gel_distance_m - rng.uniform(0.0, 0.0008, size=observed.shape)).astype(np.float32)
+    fused = fast.score_masks("two_boxes", T, camera, roi, observed, observed_outside=3.0, depth_limit_m=limit, **kw)
+    taken = masks & (depth < limit) & observed
+    assert taken.any(axis=(1, 2)).sum() > 10 and (masks & observed & ~taken).any()
+    np.testing.assert_array_equal(fused, iou_scores(masks & ~taken, observed, observed_outside=3.0))
+    assert bool(runs) == (kernel == "runs")
