@@ -101,18 +101,25 @@ def _two_boxes():
     return trimesh.util.concatenate([a, b])
 
 
-@pytest.mark.parametrize("kernel", ["runs", "bytes"])
-@pytest.mark.parametrize("case", ["plain", "slanted occluder", "tactile", "tactile occluded", "near plane"])
-def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case, kernel, monkeypatch):
-    # Scoring by runs (whole words of a row at once, bisection where a constant threshold cuts
-    # a row) or by a byte mask must give the IoU of the masks rendered pixel by pixel, in every
-    # mode; runs serve only thresholds that are one value over the window.
+def _force_kernel(fast, kernel, monkeypatch) -> list:
+    """Make ``fast`` score by runs wherever it may (``kernel`` "runs") or never ("bytes"); the
+    list returned gets an item per runs-kernel call."""
     from mvtop_cli.render import raster
 
     runs = []
     real = raster.score_runs_kernel
     monkeypatch.setattr(raster, "score_runs_kernel", lambda *a: runs.append(1) or real(*a))
     monkeypatch.setattr(fast, "RUNS_MIN_PIXELS_PER_FACE", 0 if kernel == "runs" else 10**9)
+    return runs
+
+
+@pytest.mark.parametrize("kernel", ["runs", "bytes"])
+@pytest.mark.parametrize("case", ["plain", "slanted occluder", "tactile", "tactile occluded", "near plane"])
+def test_fused_scores_count_exactly_the_rendered_pixels(scene, fast, case, kernel, monkeypatch):
+    # Scoring by runs (whole words of a row at once, bisection where a constant threshold cuts
+    # a row) or by a byte mask must give the IoU of the masks rendered pixel by pixel, in every
+    # mode; runs serve only thresholds that are one value over the window.
+    runs = _force_kernel(fast, kernel, monkeypatch)
     rng = np.random.default_rng(11)
     fast.add_mesh("two_boxes", *(lambda m: (m.vertices, m.faces))(_two_boxes()))
     kw = {}
@@ -152,12 +159,7 @@ def test_fused_depth_limit_takes_back_exactly_the_observed_pixels_pressed_deeper
     # With a depth limit the fused scores (runs or byte mask, blocks of columns skipped where no
     # pixel can pass) must leave out exactly the observed pixels whose rendered depth is nearer
     # than the limit, as the masks and depth maps rendered pixel by pixel say.
-    from mvtop_cli.render import raster
-
-    runs = []
-    real = raster.score_runs_kernel
-    monkeypatch.setattr(raster, "score_runs_kernel", lambda *a: runs.append(1) or real(*a))
-    monkeypatch.setattr(fast, "RUNS_MIN_PIXELS_PER_FACE", 0 if kernel == "runs" else 10**9)
+    runs = _force_kernel(fast, kernel, monkeypatch)
     rng = np.random.default_rng(12)
     fast.add_mesh("two_boxes", *(lambda m: (m.vertices, m.faces))(_two_boxes()))
     camera = scene.tactile
