@@ -153,7 +153,7 @@ def _span(inv_a, b, c, sa, y, lo, hi):
     return lo, min(hi, np.floor(t))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _over_limit(mask, obs, lim, lmin, yi, base, a, b, izy, P, u0, bisect):
     """Mark (``mask`` ``_OVER``) and count the observed pixels ``a .. b`` of row ``yi`` (index
     ``base + x``), not marked before, whose inverse depth ``izy + P (x - u0)`` is not ``<= lim``.
@@ -201,7 +201,7 @@ def _raster_triangle(
     per-pixel inverse depth, at least ``thr``: an observed pixel (``obs`` 0 or 1) that a fragment
     comes nearer than it is taken back from both counts, once (``_over_limit``; ``lmin`` the
     ``limit_blocks`` of ``zbuf`` and ``obs``). ``MODE_BITS_LIMIT`` is ``MODE_BITS`` returning
-    (0, such pixels), ``mask`` (uint8) marking them."""
+    that take-back, (-n, -n), with ``mask`` (uint8) marking those pixels."""
     if use_thr and max(iz0, max(iz1, iz2)) <= thr_min:
         return 0, 0
     # Pixel-centre bounding box, clipped to the image.
@@ -258,23 +258,21 @@ def _raster_triangle(
                     if not (izy + P * (xi - u0) <= thr_min):
                         acc |= np.uint64(1) << np.uint64(xi & 63)
                 bits[row + word] |= acc
-            if limit:
-                inter += _over_limit(mask, obs, zbuf, lmin, yi, base, ilo, ihi, izy, P, u0, bisect)
-            continue
-        for xi in range(int(lo), int(hi) + 1):
-            idx = base + xi
-            if zmode:
-                iz = izy + P * (xi - u0)
-                if iz > zbuf[idx] and (not use_thr or iz > thr[idx]):
-                    zbuf[idx] = iz
-            elif not mask[idx]:
-                if use_thr:
+        else:
+            for xi in range(int(lo), int(hi) + 1):
+                idx = base + xi
+                if zmode:
                     iz = izy + P * (xi - u0)
-                    if iz <= thr[idx]:
-                        continue
-                mask[idx] = True
-                area += 1
-                inter += obs[idx]
+                    if iz > zbuf[idx] and (not use_thr or iz > thr[idx]):
+                        zbuf[idx] = iz
+                elif not mask[idx]:
+                    if use_thr:
+                        iz = izy + P * (xi - u0)
+                        if iz <= thr[idx]:
+                            continue
+                    mask[idx] = True
+                    area += 1
+                    inter += obs[idx]
         if limit:
             over = _over_limit(mask, obs, zbuf, lmin, yi, base, int(lo), int(hi), izy, P, u0, bisect)
             area -= over
@@ -471,18 +469,16 @@ def score_runs_kernel(
         bits = np.zeros(height * nw, dtype=np.uint64)
         over = np.zeros(width * height if use_lim else 1, dtype=np.uint8)
         for i in range(c * n // nchunks, (c + 1) * n // nchunks):
-            _, n_over = _raster_pose(
+            a, b = _raster_pose(
                 poses[i], verts, faces, planes, cull, intr, width, height, znear,
                 tdummy, thr_min, use_thr, mode, over, lim, obs, bits, nw, lmin, cam, scr,
             )  # fmt: skip
-            a = -n_over
-            b = -n_over
+            if a < 0:  # pixels taken back by the limit: clear their marks
+                over[:] = 0
             for k in range(height * nw):
                 a += _popcount(bits[k])
                 b += _popcount(bits[k] & obs_bits[k])
                 bits[k] = 0
-            if n_over:
-                over[:] = 0
             area[i] = a
             inter[i] = b
 
