@@ -377,6 +377,12 @@ class SearchConfig:
         1, 1000, doc="prior samples per particle in the mode check's search (a far better mode is found with fewer "
                      "than the first frame's search needs to place the estimate)"))
     mode_rounds: int = field(default=8, metadata=_rng(0, 1000, doc="rounds of the mode check's search"))
+    mode_history_frames: int = field(default=9, metadata=_rng(
+        0, 1000, doc="the mode check also scores its best pose, and then the redone frame's estimate, against the "
+                     "estimate on up to this many earlier frames since the last contact, each pose choosing among "
+                     "their belief-free proposals: in free air the grasp holds, so one in-hand pose explains them "
+                     "all, and a switch needs the margin over them and the frame together (contact, or a log "
+                     "without a contact signal, empties them); 0: the frame alone"))
     dissent: bool = field(default=True, metadata={
         "doc": "when a sensor disagrees with the estimate the others agree on (consistency.low_iou / consensus_iou), "
                "search the grasp prior for the poses that sensor explains before its weight is scaled down, and redo "

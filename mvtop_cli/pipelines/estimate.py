@@ -154,8 +154,8 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
                 max_frames: int | None, total: int, progress: Callable[[int, int], None] | None,
                 t_start: float, debug_images: bool = False) -> None:
     """The frame loop: replay the ``restored.frames_done`` frames a resumed run has done
-    (the reader's grouping and skip list, and the tactile reference images, come out as in
-    the first run), restore the particles and the generator, then step the filter and
+    (the reader's grouping and skip list, the tactile reference images and the mode check's
+    earlier frames come out as in the first run), restore the particles and the generator, then step the filter and
     checkpoint each further frame (with ``debug_images``, with its sensors' masks)."""
     done = restored.frames_done
     if restored.particles is not None:
@@ -176,6 +176,7 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
             break
         if n < done:
             _prime_observer(estimator, frame, primed)
+            estimator.remember(frame)
         else:
             read_s = time.perf_counter() - t_read
             result = estimator.step(frame)

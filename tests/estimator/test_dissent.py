@@ -110,6 +110,12 @@ def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_fav
     assert free.cameras == ["front", "side"]
     scored = free(both)
     assert scored[1] > scored[0] + cfg.search.mode_margin  # on equal terms the truth wins
+    # so it does on the earlier frames, which the check weighs too (search.mode_history_frames):
+    # frames 0-2 are out of contact, so one in-hand pose explains them all
+    assert [f.index for f in estimator.history] == [0, 1, 2, 3]
+    estimator.history.pop()  # the check at frame 3 sees frames 0-2
+    earlier = [float(np.subtract(*p(both[::-1]))) for p in estimator._earlier_likelihoods()]
+    assert len(earlier) == 3 and min(earlier) > 0.0, earlier
 
     checked, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 8)
     for (p, _, _), (c, _, _) in zip(plain[:3], checked[:3]):
@@ -140,3 +146,37 @@ def test_without_touch_the_mode_check_does_not_run(scene):
     for (p, _, _), (c, _, _) in zip(plain, checked):
         np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
         assert "mode_switch" not in c.flags and c.timings["poses_scored"] == p.timings["poses_scored"]
+
+
+
+def test_a_switch_the_earlier_frames_contradict_is_not_made(scene, monkeypatch):
+    """The mode check's earlier frames (``search.mode_history_frames``) can hold a switch back:
+    with their proposal log-likelihoods replaced by one that favours the estimate by 100 nats
+    over any pose a millimetre or a degree from it, the check at frame 3 leaves the run in the
+    wrong mode it redoes without them (the previous test). A frame in contact, or of a log
+    without a contact signal, empties them: the part may have slipped in the grasp."""
+    log_path, cfg = scene
+    cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt="belief", belief_band_px=0),
+                  search=replace(cfg.search, rival_every=4, mode_check=True))
+    plain, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=False)), 3)
+    held = plain[2][0].T_ee_object  # the wrong mode, as the estimate stands before the check
+
+    def favours_the_estimate(estimator):
+        def earlier(T_ee_object):
+            moved = np.linalg.norm(T_ee_object[:, :3, 3] - held[:3, 3], axis=1) / 1e-3
+            turned = np.degrees(np.linalg.norm(se3.matrix_to_rotvec(T_ee_object[:, :3, :3] @ held[:3, :3].T), axis=1))
+            return -100.0 * np.minimum(np.maximum(moved, turned), 1.0)
+        return [earlier] if estimator.history else []
+
+    monkeypatch.setattr(Estimator, "_earlier_likelihoods", favours_the_estimate)
+    run, estimator = _steps(log_path, cfg, 4)
+    assert [f.index for f in estimator.history] == [0, 1, 2, 3]
+    assert not any("mode_switch" in r.flags for r, _, _ in run)
+    assert all(_errors(r, T)[1] > 10.0 for r, T, _ in run)  # still in the wrong mode
+
+    frame = run[3][2]
+    estimator.remember(replace(frame, contact=True))
+    assert len(estimator.history) == 0
+    estimator.remember(replace(frame, contact=False))
+    estimator.remember(replace(frame, contact=None))
+    assert len(estimator.history) == 0
