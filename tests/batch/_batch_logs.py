@@ -72,10 +72,12 @@ def _pid_holding(path: Path) -> int | None:
     return None
 
 
-def kill_worker_after(out_dir: Path, frames: int, timeout_s: float = 240.0) -> dict:
+def kill_worker_after(out_dir: Path, frames: int, timeout_s: float = 900.0) -> dict:
     """In a background thread: once the job writing ``out_dir`` has checkpointed ``frames``
     frames, SIGKILL the process writing its checkpoint. Returns a dict that gets ``pid`` and
-    ``frames`` (those checkpointed when it was killed)."""
+    ``frames`` (those checkpointed when it was killed). The watch gives up after ``timeout_s``:
+    generous, as a fresh checkout compiles the kernels in its first workers, which on a busy
+    machine takes minutes."""
     killed: dict = {}
     journal = out_dir / CHECKPOINT_DIR / JOURNAL_FILE
 
