@@ -157,8 +157,10 @@ class Estimator:
         self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
         self.rival: RivalMode | None = None  # the last rival check's finding
         self.in_contact = False  # the last frame's contact state (search.check_at_contact)
-        # the frames since the last contact, for the mode check (search.mode_history_frames)
-        self.history: deque[Frame] = deque(maxlen=s.mode_history_frames)
+        # the frames since the last contact, for the mode check (search.mode_history_frames; none kept
+        # where the check never runs)
+        checks = s.mode_check and "vision" in cfg.modalities and "tactile" in cfg.modalities
+        self.history: deque[Frame] = deque(maxlen=s.mode_history_frames if checks else 0)
 
     @classmethod
     def from_config(cls, cfg: Config, frame_pose: Callable[[str, int], np.ndarray] | None = None) -> Estimator:
@@ -397,27 +399,27 @@ class Estimator:
     def _mode_check(self, frame: Frame, result: StepResult, likelihood: Likelihood,
                     contact: bool | None) -> ModeSwitch | None:
         """The mode check (``search.mode_check``): a fresh search of the grasp prior
-        (``search.mode_init_factor``, ``mode_rounds``), from a generator of its own, with every
-        pose choosing its own camera masks among the frame's belief-free proposals
-        (``ProposalLikelihood``); only on frames with touch as well as camera proposals. When
-        its best pose lies farther from the estimate than ``search.rival_translation_m`` /
+        (``search.mode_init_factor``, ``mode_rounds``), from a generator of its own, with every pose
+        choosing its own camera masks among the frame's belief-free proposals
+        (``ProposalLikelihood``); only on frames with touch as well as camera proposals. When its
+        best pose lies farther from the estimate than ``search.rival_translation_m`` /
         ``rival_rotation_deg`` (after the part's symmetries) and beats it by more than
         ``search.mode_margin`` nats, on this frame alone and on it and the earlier frames
-        (``history``, ``_earlier_likelihoods``) together, the frame is redone
-        from the searched population: the camera masks chosen again with those poses as the
-        belief, the consistency watch's verdicts forgotten (they judged the sensors against the
-        old mode), and the refinement run on the new likelihood. The redo is kept when its
-        estimate too beats the old one by the margin on equal terms (both ways); otherwise the filter's
-        generator and the watch are put back, so a run without a switch has the estimates of a
-        run without the check. The earlier frames can only hold a switch back: in free air one
-        in-hand pose explains them all, and on a closed-loop shaft-peg grasp (1010) hovering 4 mm
-        above its receptacle the camera proposals took in the dark mouth below the peg's tip, so
-        a pose 6.6 mm deeper beat the estimate by 7-10 nats on frames 7-9 alone while frames 0-6
-        favoured the truth by 8-26 nats each. Returns the redo, or None: the estimate stands. On
-        simulated grasps whose first frame settled in a wrong mode the belief's own masks favour it by
-        tens of nats, while on these terms the truth wins by as much (README: Mode check).
-        Without touch the check is not run: each pose's free choice among coarse proposals then
-        let poses 2-4 mm and 10-20 deg off beat right estimates by 12-25 nats (cameras and
+        (``history``, ``_earlier_likelihoods``) together, the frame is redone from the searched
+        population: the camera masks chosen again with those poses as the belief, the consistency
+        watch's verdicts forgotten (they judged the sensors against the old mode), and the
+        refinement run on the new likelihood. The redo is kept when its estimate too beats the old
+        one by the margin on equal terms (both ways); otherwise the filter's generator and the watch
+        are put back, so a run without a switch has the estimates of a run without the check.
+        Returns the redo, or None: the estimate stands.
+        On simulated grasps whose first frame settled in a wrong mode the belief's own masks favour
+        it by tens of nats, while on these terms the truth wins by as much (README: Mode check). The
+        earlier frames can only hold a switch back: in free air one in-hand pose explains them all,
+        and on a closed-loop shaft-peg grasp (1010) hovering 4 mm above its receptacle the camera
+        proposals took in the receptacle's mouth below the peg's tip, so a pose 6.6 mm deeper beat
+        the truth by 7-10 nats on frames 7-9 alone while frames 0-6 favoured the truth by 8-26 nats
+        each. Without touch the check is not run: each pose's free choice among coarse proposals
+        then let poses 2-4 mm and 10-20 deg off beat right estimates by 12-25 nats (cameras and
         contact alone, 12 of 19 simulated grasps switched, 8 of them to a worse final pose)."""
         s, f = self.cfg.search, self.cfg.filter
         proposals = self.observations.proposal_sets(frame)

@@ -155,8 +155,9 @@ def _run_frames(reader: FrameReader, estimator: Estimator, ck: Checkpoint, resto
                 t_start: float, debug_images: bool = False) -> None:
     """The frame loop: replay the ``restored.frames_done`` frames a resumed run has done
     (the reader's grouping and skip list, the tactile reference images and the mode check's
-    earlier frames come out as in the first run), restore the particles and the generator, then step the filter and
-    checkpoint each further frame (with ``debug_images``, with its sensors' masks)."""
+    earlier frames come out as in the first run), restore the particles and the generator,
+    then step the filter and checkpoint each further frame (with ``debug_images``, with its
+    sensors' masks)."""
     done = restored.frames_done
     if restored.particles is not None:
         estimator.particles = restored.particles
