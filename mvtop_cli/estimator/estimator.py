@@ -100,14 +100,15 @@ class FrameEstimate:
 
 @dataclass(frozen=True)
 class ModeSwitch:
-    """A frame redone by the mode check (``Estimator._mode_check``): its new filter ``result``,
-    the ``likelihood`` and ``observation`` of the masks chosen by the searched poses, and the
-    ``mode_switch`` warning ``record``."""
+    """What the mode check (``Estimator._mode_check``) did to a frame: its ``record``, a
+    ``mode_switch`` warning with the redone frame's new filter ``result`` and the
+    ``likelihood`` and ``observation`` of the masks chosen by the searched poses, or a
+    ``mode_held`` warning (the earlier frames held the switch back) with those None."""
 
-    result: StepResult
-    likelihood: Likelihood
-    observation: Observation
     record: dict
+    result: StepResult | None = None
+    likelihood: Likelihood | None = None
+    observation: Observation | None = None
 
 
 class Estimator:
@@ -196,7 +197,8 @@ class Estimator:
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
         switch = self._mode_check(frame, result, likelihood, contact) if checked else None
-        if switch is not None:
+        switched = switch is not None and switch.result is not None
+        if switched:
             result, likelihood, observation = switch.result, switch.likelihood, switch.observation
         self.last_likelihood = likelihood  # for diagnostics: the frame's likelihood at any pose, e.g. the truth's
         t_filter = time.perf_counter()
@@ -205,6 +207,7 @@ class Estimator:
         flags = list(result.flags)
         if switch is not None:
             warnings.append(switch.record)
+        if switched:
             flags.append("mode_switch")
 
         # a sensor that keeps disagreeing with all the others gets its weight scaled down from
@@ -411,7 +414,8 @@ class Estimator:
         refinement run on the new likelihood. The redo is kept when its estimate too beats the old
         one by the margin on equal terms (both ways); otherwise the filter's generator and the watch
         are put back, so a run without a switch has the estimates of a run without the check.
-        Returns the redo, or None: the estimate stands.
+        Returns the redo, the hold (``mode_held``: the earlier frames alone kept the estimate), or
+        None: no switch in question.
         On simulated grasps whose first frame settled in a wrong mode the belief's own masks favour
         it by tens of nats, while on these terms the truth wins by as much (README: Mode check). The
         earlier frames can only hold a switch back: in free air one in-hand pose explains them all,
@@ -438,8 +442,15 @@ class Estimator:
         if better <= s.mode_margin or same:
             return None
         earlier = self._earlier_likelihoods()
-        if better + _gain(earlier, best, result.estimate) <= s.mode_margin:
-            return None
+        before = _gain(earlier, best, result.estimate)
+        if better + before <= s.mode_margin:
+            return ModeSwitch(warning(
+                frame.index, "mode_held",
+                f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
+                f"{turned:.2f} deg from the estimate explained the frame {better:.1f} nats better, but over the "
+                f"frames before it since the last contact ({len(earlier)}) the estimate leads by {-before:.1f} nats: "
+                "the estimate stands", translation_mm=moved, rotation_deg=turned, nats_better=better,
+                earlier_frames=len(earlier), earlier_nats_better=before, ratio=better))
         t0 = time.perf_counter()
         generator = self.rng.bit_generator.state
         start = tempered_resample(poses, ll, f.num_particles, f.resampling, self.rng)
@@ -462,7 +473,7 @@ class Estimator:
             f"from it ({gain:.1f} nats better than before) and the sensor consistency watch restarted",
             translation_mm=moved, rotation_deg=turned, nats_better=better, ratio=better,
         )
-        return ModeSwitch(redo, redo_likelihood, observation, record)
+        return ModeSwitch(record, redo, redo_likelihood, observation)
 
     def _earlier_likelihoods(self) -> list[Callable[[np.ndarray], np.ndarray]]:
         """The mode check's terms on its earlier frames (``history``): per frame, the

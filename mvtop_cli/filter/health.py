@@ -33,6 +33,8 @@ WARNING_KINDS: dict[str, str] = {
     "rival_mode": "a fresh search found another pose that explains the frame about as well as the estimate",
     "mode_switch": "with each pose choosing its own camera masks, another pose explained the frame far better: the "
                    "frame was redone from it",
+    "mode_held": "with each pose choosing its own camera masks, another pose explained the frame far better, but the "
+                 "frames before it since the last contact did not: the estimate stands",
 }
 
 

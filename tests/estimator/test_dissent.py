@@ -11,6 +11,7 @@ scaled down after five frames and the run ends in the wrong mode.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 
 import numpy as np
@@ -110,14 +111,15 @@ def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_fav
     assert free.cameras == ["front", "side"]
     scored = free(both)
     assert scored[1] > scored[0] + cfg.search.mode_margin  # on equal terms the truth wins
-    # so it does on the earlier frames, which the check weighs too (search.mode_history_frames):
-    # frames 0-2 are out of contact, so one in-hand pose explains them all
-    assert [f.index for f in estimator.history] == [0, 1, 2, 3]
-    estimator.history.pop()  # the check at frame 3 sees frames 0-2
+    assert len(estimator.history) == 0  # without the check no earlier frames are kept
+
+    checked, estimator = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 8)
+    # the truth wins on the earlier frames too, which the check weighs (search.mode_history_frames):
+    # frames 0-7 are out of contact, so one in-hand pose explains them all
+    assert [f.index for f in estimator.history] == list(range(8))
+    estimator.history = deque(list(estimator.history)[:3])  # what the check at frame 3 saw
     earlier = [float(np.subtract(*p(both[::-1]))) for p in estimator._earlier_likelihoods()]
     assert len(earlier) == 3 and min(earlier) > 0.0, earlier
-
-    checked, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=True)), 8)
     for (p, _, _), (c, _, _) in zip(plain[:3], checked[:3]):
         np.testing.assert_array_equal(c.T_ee_object, p.T_ee_object)
     switch = [w for w in checked[3][0].warnings if w["kind"] == "mode_switch"]
@@ -173,6 +175,10 @@ def test_a_switch_the_earlier_frames_contradict_is_not_made(scene, monkeypatch):
     assert [f.index for f in estimator.history] == [0, 1, 2, 3]
     assert not any("mode_switch" in r.flags for r, _, _ in run)
     assert all(_errors(r, T)[1] > 10.0 for r, T, _ in run)  # still in the wrong mode
+    held = [w for r, _, _ in run for w in r.warnings if w["kind"] == "mode_held"]
+    assert [w["frame"] for w in held] == [3] and held[0]["earlier_frames"] == 1
+    assert held[0]["nats_better"] > cfg.search.mode_margin and held[0]["earlier_nats_better"] < -50.0
+    assert f"the estimate leads by {-held[0]['earlier_nats_better']:.1f} nats" in held[0]["detail"]
 
     frame = run[3][2]
     estimator.remember(replace(frame, contact=True))
