@@ -442,15 +442,21 @@ class Estimator:
         if better <= s.mode_margin or same:
             return None
         earlier = self._earlier_likelihoods()
-        before = _gain(earlier, best, result.estimate)
-        if better + before <= s.mode_margin:
+
+        def held(lead: float, before: float) -> ModeSwitch:
+            """The ``mode_held`` outcome: the frame's ``lead`` [nats] over the estimate, undone
+            by the earlier frames' ``before``."""
             return ModeSwitch(warning(
                 frame.index, "mode_held",
                 f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
-                f"{turned:.2f} deg from the estimate explained the frame {better:.1f} nats better, but over the "
+                f"{turned:.2f} deg from the estimate explained the frame {lead:.1f} nats better, but over the "
                 f"frames before it since the last contact ({len(earlier)}) the estimate leads by {-before:.1f} nats: "
-                "the estimate stands", translation_mm=moved, rotation_deg=turned, nats_better=better,
-                earlier_frames=len(earlier), earlier_nats_better=before, ratio=better))
+                "the estimate stands", translation_mm=moved, rotation_deg=turned, nats_better=lead,
+                earlier_frames=len(earlier), earlier_nats_better=before, ratio=lead))
+
+        before = _gain(earlier, best, result.estimate)
+        if better + before <= s.mode_margin:
+            return held(better, before)
         t0 = time.perf_counter()
         generator = self.rng.bit_generator.state
         start = tempered_resample(poses, ll, f.num_particles, f.resampling, self.rng)
@@ -461,10 +467,11 @@ class Estimator:
         redo = self.pf.refine(start, redo_likelihood, f.refine_iterations * s.first_frame_iteration_factor)
         self._search_s += time.perf_counter() - t0
         gain = float(bounded(redo.estimate[None])[0]) - at_estimate
-        if gain <= s.mode_margin or gain + _gain(earlier, redo.estimate, result.estimate) <= s.mode_margin:
+        before = _gain(earlier, redo.estimate, result.estimate) if gain > s.mode_margin else 0.0
+        if gain <= s.mode_margin or gain + before <= s.mode_margin:
             self.consistency.factors, self.consistency.streak = saved
             self.rng.bit_generator.state = generator
-            return None
+            return held(gain, before) if gain > s.mode_margin else None
         redo_likelihood.add_counts(likelihood)
         record = warning(
             frame.index, "mode_switch",
