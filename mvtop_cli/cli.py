@@ -102,26 +102,31 @@ def _progress(label: str, resumable: bool = False):
     """Progress on stderr; yields ``update(done, total)``. On a terminal, a progress bar; else
     (a log file, a CI job) a plain line at most every ``_PLAIN_PROGRESS_INTERVAL_S`` seconds, and
     one when work that took longer than that is complete, with the time elapsed and an estimate
-    of the time left.
+    of the time left, at the rate since the first unit of work done in this run (the first
+    frame compiles the kernels and searches the whole grasp prior: it would put the estimate
+    an order of magnitude too high), so none before a second unit is done.
 
     With ``resumable``, a first update that already reports work done (a resumed run) makes
     the bar count from there: it shows ``done/total`` and an ETA from the remaining work only
     (the plain lines always estimate from the work done in this run)."""
     bar = None
     start = 0
-    plain = {"t0": None, "first": 0, "last": 0.0}
+    plain = {"t0": None, "first": 0, "last": 0.0, "t1": None, "one": 0}
 
     def plain_line(done: int, total: int) -> None:
         now = time.monotonic()
         if plain["t0"] is None:
             plain["t0"], plain["first"], plain["last"] = now, done, now
             return
+        if plain["t1"] is None and done > plain["first"]:  # the run's first unit: the rate starts here
+            plain["t1"], plain["one"] = now, done
         finished_long = done >= total and now - plain["t0"] >= _PLAIN_PROGRESS_INTERVAL_S
         if now - plain["last"] < _PLAIN_PROGRESS_INTERVAL_S and not finished_long:
             return  # short jobs print no progress at all, long ones a line a minute and the last
         plain["last"] = now
         elapsed = now - plain["t0"]
-        rate = (done - plain["first"]) / elapsed if elapsed > 0 else 0.0
+        since = now - plain["t1"] if plain["t1"] is not None else 0.0
+        rate = (done - plain["one"]) / since if since > 0 else 0.0
         left = "" if done >= total or rate <= 0 else f", about {format_duration((total - done) / rate)} left"
         pct = 100.0 * done / max(total, 1)
         click.echo(f"{label}: {done}/{total} ({pct:.0f} %), {format_duration(elapsed)} elapsed{left}", err=True)

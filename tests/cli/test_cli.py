@@ -182,13 +182,35 @@ def test_progress_without_a_terminal_prints_plain_lines_with_time_left(monkeypat
     with cli_module._progress("benchmark accuracy") as update:
         update(0, 10)  # t = 0: the start
         update(1, 10)  # t = 30: within the minute, nothing printed
-        update(2, 10)  # t = 61: 2 runs in 61 s, 8 to go at that rate
+        update(2, 10)  # t = 61: one run in the 31 s since the first, 8 to go at that rate
         update(3, 10)  # t = 90: within a minute of the last line
         update(10, 10)  # t = 200: complete
     lines = capsys.readouterr().err.splitlines()
     assert lines == [
-        "benchmark accuracy: 2/10 (20 %), 1 min 1 s elapsed, about 4 min 4 s left",
+        "benchmark accuracy: 2/10 (20 %), 1 min 1 s elapsed, about 4 min 8 s left",
         "benchmark accuracy: 10/10 (100 %), 3 min 20 s elapsed",
+    ]
+
+
+def test_progress_time_left_leaves_out_the_slow_first_frame(monkeypatch, capsys):
+    """The first frame compiles the kernels and searches the whole prior (100 s here); the
+    time left comes from the frames after it (about 1.5 s each), and there is none while it is the
+    only one done."""
+    from mvtop_cli import cli as cli_module
+
+    clock = iter([0.0, 100.0, 101.5, 161.2, 176.2])
+    monkeypatch.setattr(cli_module.time, "monotonic", lambda: next(clock))
+    with cli_module._progress("estimate cube.mcap") as update:
+        update(0, 50)  # t = 0: the start
+        update(1, 50)  # t = 100: the first frame
+        update(2, 50)  # t = 101.5: within the minute
+        update(40, 50)  # t = 161.2: 39 frames in the 61.2 s since the first, 10 to go at that rate
+        update(50, 50)  # t = 176.2: complete
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        "estimate cube.mcap: 1/50 (2 %), 1 min 40 s elapsed",
+        "estimate cube.mcap: 40/50 (80 %), 2 min 41 s elapsed, about 16 s left",
+        "estimate cube.mcap: 50/50 (100 %), 2 min 56 s elapsed",
     ]
 
 
