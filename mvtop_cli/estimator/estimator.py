@@ -103,12 +103,15 @@ class ModeSwitch:
     """What the mode check (``Estimator._mode_check``) did to a frame: its ``record``, a
     ``mode_switch`` warning with the redone frame's new filter ``result`` and the
     ``likelihood`` and ``observation`` of the masks chosen by the searched poses, or a
-    ``mode_held`` warning (the earlier frames held the switch back) with those None."""
+    ``mode_held`` warning (the earlier frames held the switch back) with those None and the
+    held-back pose as a ``rival``: the frame and the frames before disagree, so it stands as a
+    rival mode (the covariance the grasp prior's spread) until a later rival check rules it out."""
 
     record: dict
     result: StepResult | None = None
     likelihood: Likelihood | None = None
     observation: Observation | None = None
+    rival: RivalMode | None = None
 
 
 class Estimator:
@@ -248,6 +251,8 @@ class Estimator:
                 warnings.append(rival.warning())
             if rival is not None or ruled_out:
                 self.rival = rival
+        if switch is not None and switch.rival is not None:
+            self.rival = switch.rival
         if self.rival is not None:
             flags.append("rival_mode")
             suspect = True
@@ -451,8 +456,10 @@ class Estimator:
                 f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
                 f"{turned:.2f} deg from the estimate explained the frame {lead:.1f} nats better, but over the "
                 f"frames before it since the last contact ({len(earlier)}) the estimate leads by {-before:.1f} nats: "
-                "the estimate stands", translation_mm=moved, rotation_deg=turned, nats_better=lead,
-                earlier_frames=len(earlier), earlier_nats_better=before, ratio=lead))
+                "the estimate stands; until a later check rules that pose out, the covariance is the grasp prior's "
+                "spread", translation_mm=moved, rotation_deg=turned, nats_better=lead,
+                earlier_frames=len(earlier), earlier_nats_better=before, ratio=lead),
+                rival=RivalMode(frame.index, moved, turned, -lead))
 
         before = _gain(earlier, best, result.estimate)
         if better + before <= s.mode_margin:

@@ -34,7 +34,8 @@ WARNING_KINDS: dict[str, str] = {
     "mode_switch": "with each pose choosing its own camera masks, another pose explained the frame far better: the "
                    "frame was redone from it",
     "mode_held": "with each pose choosing its own camera masks, another pose explained the frame far better, but the "
-                 "frames before it since the last contact did not: the estimate stands",
+                 "frames before it since the last contact did not: the estimate stands, the held-back pose a rival "
+                 "mode",
 }
 
 

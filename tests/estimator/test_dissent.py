@@ -179,6 +179,14 @@ def test_a_switch_the_earlier_frames_contradict_is_not_made(scene, monkeypatch):
     assert [w["frame"] for w in held] == [3] and held[0]["earlier_frames"] == 1
     assert held[0]["nats_better"] > cfg.search.mode_margin and held[0]["earlier_nats_better"] < -50.0
     assert f"the estimate leads by {-held[0]['earlier_nats_better']:.1f} nats" in held[0]["detail"]
+    # the frame and the frames before disagree: the held-back pose stands as a rival mode, and the
+    # reported covariance takes the grasp prior's spread, where the frame before was tighter
+    assert "rival_mode" in run[3][0].flags and "rival_mode" not in run[2][0].flags
+    assert estimator.rival is not None and estimator.rival.frame == 3
+    assert estimator.rival.nats_below == -held[0]["nats_better"]
+    prior_var = estimator.prior.sigma ** 2
+    assert np.all(np.diag(run[3][0].covariance) >= prior_var)
+    assert np.all(np.diag(run[2][0].covariance)[:3] < 0.5 * prior_var[:3])
 
     frame = run[3][2]
     estimator.remember(replace(frame, contact=True))
