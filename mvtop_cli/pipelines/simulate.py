@@ -52,6 +52,9 @@ KINEMATICS = {
 }
 URDF_FILE = f"{robot.ROBOT_NAME}.urdf"  # written beside the scene config
 SDF_RESOLUTION_M = 0.00025  # the config's default contact.sdf_resolution_m
+# the scene configs' masking.tactile_depth_tolerance_m [m]: the depth topics hold the exact
+# indentation (to INDENTATION_STEP_M), so a pose pressed 0.05 mm deeper than measured is ruled out
+DEPTH_TOLERANCE_M = 5e-5
 
 
 @dataclass(frozen=True)
@@ -417,7 +420,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     ``options`` (default: SimulateOptions()) are those the logs were simulated with: they
     decide the image topics (compressed or raw), the gel distance [m] (unless
     ``gel_distance_m`` is given) and, for ``kinematics="joint-states"``, ``robot.urdf``
-    (``URDF_FILE`` beside the config, see :func:`write_scene_config`)."""
+    (``URDF_FILE`` beside the config, see :func:`write_scene_config`). The simulated pads'
+    depth is exact, so the config sets ``masking.tactile_depth_tolerance_m`` (``DEPTH_TOLERANCE_M``)."""
     options = options or SimulateOptions()
     if gel_distance_m is None:
         gel_distance_m = options.gel_distance_m
@@ -470,8 +474,9 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
             "pose": pose(spec.grasp), "distribution": "uniform", "translation_m": 0.003, "rotation_deg": 10.0
         },
     }
+    cfg["masking"] = {"tactile_depth_tolerance_m": DEPTH_TOLERANCE_M}
     if options.mask_topics:
-        cfg["masking"] = {"camera": {"backend": "topic"}}
+        cfg["masking"]["camera"] = {"backend": "topic"}
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}
     if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance

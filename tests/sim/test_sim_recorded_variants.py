@@ -131,6 +131,12 @@ def test_scene_config_follows_the_recording_options():
     js = scene_config("cube", options=SimulateOptions(kinematics="joint-states", gel_distance_m=0.03))
     assert js["robot"] == {"urdf": URDF_FILE}
     assert all(t["gel_distance_m"] == 0.03 for t in js["sensors"]["tactile"])
+    # the simulated depth topics are exact: every scene config rules out poses pressed deeper
+    # than measured by 0.05 mm, the recorded masks' configs as well
+    assert plain["masking"] == {"tactile_depth_tolerance_m": 5e-5}
+    assert all(t["depth_topic"] == f"/tactile/{t['name']}/depth" for t in plain["sensors"]["tactile"])
+    masked = scene_config("cube", options=SimulateOptions(mask_topics=True))
+    assert masked["masking"] == {"tactile_depth_tolerance_m": 5e-5, "camera": {"backend": "topic"}}
 
 
 def _frames(log: Path, cfg_path: Path):
