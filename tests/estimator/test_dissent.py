@@ -7,6 +7,11 @@ within a fraction of a millimetre of the truth, so the joint searches miss it, a
 evidence agrees with the wrong mode. With camera masks prompted by the grasp prior (the belief
 only chooses) the dissent search finds the truth's basin within a frame; without it the pad is
 scaled down after five frames and the run ends in the wrong mode.
+
+The pads' measured depth (``masking.tactile_depth_tolerance_m``, set in the simulator's scene
+configs) rules that mode out by itself: with it the first frames stay within 2.6 deg (1.5-2 mm
+off along the peg, narrowing over the frames). The scene is estimated without it, so that the
+checks have a wrong mode to leave.
 """
 
 from __future__ import annotations
@@ -37,23 +42,30 @@ def scene(tmp_path_factory):
     simulate("shaft_peg", SEED, d / "log.mcap", options)
     cfg = load_config(write_scene_config("shaft_peg", d / "config.yaml", options))
     return d / "log.mcap", replace(cfg, filter=replace(cfg.filter, seed=SEED),
-                                   masking=replace(cfg.masking, grabcut_prompt="prior"))
+                                   masking=replace(cfg.masking, grabcut_prompt="prior", tactile_depth_tolerance_m=None))
 
 
-def _track(log_path, cfg):
-    """Per frame of the first ``FRAMES``: (translation error [mm], rotation error [deg], flags,
+def _track(log_path, cfg, frames=FRAMES):
+    """Per frame of the first ``frames``: (translation error [mm], rotation error [deg], flags,
     the left pad's IoU at the estimate)."""
     out = []
     with McapLog(log_path) as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
         estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
-        for frame, _ in zip(reader, range(FRAMES)):
+        for frame, _ in zip(reader, range(frames)):
             r = estimator.step(frame)
             T_gt = se3.invert(frame.T_world_ee) @ frame.T_world_object_gt
             dt = np.linalg.norm(r.T_ee_object[:3, 3] - T_gt[:3, 3]) * 1e3
             dw = np.degrees(np.linalg.norm(se3.matrix_to_rotvec(r.T_ee_object[:3, :3] @ T_gt[:3, :3].T)))
             out.append((dt, dw, r.flags, r.sensor_iou["left"]))
     return out
+
+
+def test_the_gels_depth_rules_the_wrong_mode_out_by_itself(scene):
+    log_path, cfg = scene
+    track = _track(log_path, replace(cfg, masking=replace(cfg.masking, tactile_depth_tolerance_m=5e-5)), 4)
+    assert all(dw < 3.0 for _, dw, _, _ in track), track  # the wrong mode: 12-19 deg off
+    assert all(left > 0.9 for _, _, _, left in track[1:]), track
 
 
 def test_an_outvoted_pad_draws_the_estimate_out_of_a_wrong_mode(scene):
