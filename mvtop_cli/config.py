@@ -369,7 +369,8 @@ class SearchConfig:
                "searches the grasp prior with every pose choosing its own camera mask among the belief-free proposals "
                "(Algorithm 2 per pose); when that search's best pose lies beyond rival_translation_m / "
                "rival_rotation_deg and beats the estimate by mode_margin nats, the belief is in a wrong mode whose "
-               "own masks agree with it: the frame is redone from the searched poses (flag mode_switch)"})
+               "own masks agree with it: the frame is redone from the searched poses (flag mode_switch); when it "
+               "scores from rival_margin below the estimate to mode_margin above it, it is a rival (flag rival_mode)"})
     mode_margin: float = field(default=5.0, metadata=_rng(
         0.0, 1e6, doc="nats by which the mode check's best pose, and then the frame redone from it, must beat the "
                       "estimate to replace it (the other searches use recheck_margin)"))

@@ -102,10 +102,12 @@ class FrameEstimate:
 class ModeSwitch:
     """What the mode check (``Estimator._mode_check``) did to a frame: its ``record``, a
     ``mode_switch`` warning with the redone frame's new filter ``result`` and the
-    ``likelihood`` and ``observation`` of the masks chosen by the searched poses, or a
-    ``mode_held`` warning (the earlier frames held the switch back) with those None and the
-    held-back pose as a ``rival``: the frame and the frames before disagree, so it stands as a
-    rival mode (the covariance the grasp prior's spread) until a later rival check rules it out."""
+    ``likelihood`` and ``observation`` of the masks chosen by the searched poses; or, with
+    those None and the searched pose as a ``rival`` (it stands as a rival mode, the covariance
+    the grasp prior's spread, until a later rival check rules it out), a ``mode_held`` warning
+    (the earlier frames held the switch back: the frame and the frames before disagree) or a
+    ``rival_mode`` warning (the pose scores too close to the estimate to switch on or to rule
+    out)."""
 
     record: dict
     result: StepResult | None = None
@@ -419,8 +421,10 @@ class Estimator:
         refinement run on the new likelihood. The redo is kept when its estimate too beats the old
         one by the margin on equal terms (both ways); otherwise the filter's generator and the watch
         are put back, so a run without a switch has the estimates of a run without the check.
-        Returns the redo, the hold (``mode_held``: the earlier frames alone kept the estimate), or
-        None: no switch in question.
+        Returns the redo, the hold (``mode_held``: the earlier frames alone kept the estimate), a
+        rival (the best pose scores from ``search.rival_margin`` below the estimate to
+        ``mode_margin`` above it: the frame's belief-free evidence cannot tell the two apart), or
+        None: the search found the estimate's own mode, or nothing within the rival margin.
         On simulated grasps whose first frame settled in a wrong mode the belief's own masks favour
         it by tens of nats, while on these terms the truth wins by as much (README: Mode check). The
         earlier frames can only hold a switch back: in free air one in-hand pose explains them all,
@@ -444,8 +448,16 @@ class Estimator:
         best = poses[int(np.argmax(ll))]
         moved, turned, same = self._distance(best, result.estimate)
         better = float(np.max(ll)) - at_estimate
-        if better <= s.mode_margin or same:
+        if same or better < -s.rival_margin:
             return None
+        if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
+            rival = RivalMode(frame.index, moved, turned, -better)
+            return ModeSwitch(warning(
+                frame.index, "rival_mode",
+                f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
+                f"{turned:.2f} deg from the estimate explains the frame {rival.comparison}: until a later check rules "
+                "it out, the covariance is the grasp prior's spread", translation_mm=moved, rotation_deg=turned,
+                nats_below=-better, ratio=better), rival=rival)
         earlier = self._earlier_likelihoods()
 
         def held(lead: float, before: float) -> ModeSwitch:

@@ -144,9 +144,17 @@ def test_the_mode_check_draws_the_estimate_out_of_a_wrong_mode_its_own_masks_fav
     assert not any("mode_switch" in c.flags for c, _, _ in checked[4:])  # the check at frame 7 finds nothing better
     # search.mode_margin, not recheck_margin, is the mode check's bar: above the truth's lead, no switch
     strict = replace(cfg.search, mode_check=True, mode_margin=scored[1] - scored[0] + 100.0)
-    unmoved, _ = _steps(log_path, replace(cfg, search=strict), 4)
+    unmoved, held = _steps(log_path, replace(cfg, search=strict), 4)
     assert not any("mode_switch" in c.flags for c, _, _ in unmoved)
     assert all(_errors(c, T)[1] > 10.0 for c, T, _ in unmoved)
+    # a lead the margin does not let it act on still leaves the searched pose as a rival mode: the
+    # frame's belief-free evidence does not rule it out, so the covariance is the grasp prior's spread
+    rival = [w for w in unmoved[3][0].warnings if w["kind"] == "rival_mode" and "proposals" in w["detail"]]
+    assert len(rival) == 1 and rival[0]["nats_below"] < -cfg.search.mode_margin, rival
+    assert rival[0]["translation_mm"] > 1.0 or rival[0]["rotation_deg"] > 3.0
+    assert "rival_mode" in unmoved[3][0].flags and "rival_mode" not in unmoved[2][0].flags
+    assert held.rival is not None and held.rival.nats_below == rival[0]["nats_below"]
+    assert np.all(np.diag(unmoved[3][0].covariance) >= held.prior.sigma ** 2)
 
 
 def test_without_touch_the_mode_check_does_not_run(scene):
