@@ -450,12 +450,13 @@ class Estimator:
         better = float(np.max(ll)) - at_estimate
         if same or better < -s.rival_margin:
             return None
+        found = (f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
+                 f"{turned:.2f} deg from the estimate")
         if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
             rival = RivalMode(frame.index, moved, turned, -better)
             return ModeSwitch(warning(
                 frame.index, "rival_mode",
-                f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
-                f"{turned:.2f} deg from the estimate explains the frame {rival.comparison}: until a later check rules "
+                f"{found} explains the frame {rival.comparison}: until a later check rules "
                 "it out, the covariance is the grasp prior's spread", translation_mm=moved, rotation_deg=turned,
                 nats_below=-better, ratio=better), rival=rival)
         earlier = self._earlier_likelihoods()
@@ -465,8 +466,7 @@ class Estimator:
             by the earlier frames' ``before``."""
             return ModeSwitch(warning(
                 frame.index, "mode_held",
-                f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
-                f"{turned:.2f} deg from the estimate explained the frame {lead:.1f} nats better, but over the "
+                f"{found} explained the frame {lead:.1f} nats better, but over the "
                 f"frames before it since the last contact ({len(earlier)}) the estimate leads by {-before:.1f} nats: "
                 "the estimate stands; until a later check rules that pose out, the covariance is the grasp prior's "
                 "spread", translation_mm=moved, rotation_deg=turned, nats_better=lead,
@@ -494,8 +494,7 @@ class Estimator:
         redo_likelihood.add_counts(likelihood)
         record = warning(
             frame.index, "mode_switch",
-            f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
-            f"{turned:.2f} deg from the estimate explained the frame {better:.1f} nats better: the frame was redone "
+            f"{found} explained the frame {better:.1f} nats better: the frame was redone "
             f"from it ({gain:.1f} nats better than before) and the sensor consistency watch restarted",
             translation_mm=moved, rotation_deg=turned, nats_better=better, ratio=better,
         )
