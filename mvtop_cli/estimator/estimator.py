@@ -505,8 +505,9 @@ class Estimator:
         log-likelihood with each pose choosing among the frame's belief-free camera proposals
         (``ProposalLikelihood``), its tactile masks and windows those of the grasp prior's
         fixed poses, so no belief enters; restricted to the search region. Made only when a
-        switch is in question, and not kept (proposals and observation: about 0.8 s a frame of
-        two cameras on this 2-core machine, busy)."""
+        switch is in question, and not kept (the observation and the proposals, which the
+        observer makes once per image: about 0.24 s a frame of two cameras on the shaft-peg scene
+        of ``tests/estimator/test_dissent.py``, this 2-core machine, busy)."""
         out = []
         prior = ParticleSet(self.observations.prior_poses, np.zeros(len(self.observations.prior_poses)))
         for past in self.history:

@@ -61,6 +61,11 @@ def make_backend(spec: BackendConfig, cfg: Config, key: str, drop: tuple[str, ..
         raise ConfigError(f"{where}{key}: {err}") from None
 
 
+# (image, box) pairs whose camera proposals ``Observer.camera_proposals`` keeps: two cameras' worth
+# of the current frame and of an earlier one
+_PROPOSALS_KEPT = 4
+
+
 class Observer:
     """Makes the observed masks of one log's frames."""
 
@@ -71,6 +76,9 @@ class Observer:
         self._tactile_spec = cfg.masking.tactile
         self._tactile = None
         self._references: dict[str, np.ndarray] = {}
+        # the last few images' camera proposals: the mode check's earlier frames ask for each
+        # image's proposals twice, for the observation and for each pose's own choice
+        self._proposals: dict[tuple, list[np.ndarray]] = {}
         ref = cfg.masking.tactile.options.get("reference_image")
         self._reference_file = None
         if ref is not None:
@@ -80,12 +88,22 @@ class Observer:
     def camera_proposals(self, img: SensorImage, roi_box: tuple[int, int, int, int]) -> list[np.ndarray]:
         """Zero-shot proposals (full-image bool masks) inside ``roi_box``; none when the box
         leaves under 2 x 2 pixels of the image (a belief at the image edge: the other
-        proposals and sensors carry the frame)."""
+        proposals and sensors carry the frame). The backends are deterministic (re-seeded every
+        call), so the proposals of the last ``_PROPOSALS_KEPT`` (image, box) pairs are kept and
+        given again, read-only."""
         H, W = img.image.shape[:2]
         if min(roi_box[2], W) - max(roi_box[0], 0) < 2 or min(roi_box[3], H) - max(roi_box[1], 0) < 2:
             return []
-        extras = {"recorded_mask": img.mask} if self.recorded and img.mask is not None else {}
-        return list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box, extras=extras)))
+        key = (img.sensor, img.stamp_ns, tuple(int(v) for v in roi_box))
+        if key not in self._proposals:
+            extras = {"recorded_mask": img.mask} if self.recorded and img.mask is not None else {}
+            found = list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box, extras=extras)))
+            for m in found:
+                m.setflags(write=False)
+            if len(self._proposals) >= _PROPOSALS_KEPT:
+                self._proposals.pop(next(iter(self._proposals)))
+            self._proposals[key] = found
+        return list(self._proposals[key])
 
     def recorded_mask(self, img: SensorImage) -> np.ndarray | None:
         """The object mask (full-image bool) recorded for camera image ``img`` (``topic``
