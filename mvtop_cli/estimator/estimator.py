@@ -450,15 +450,11 @@ class Estimator:
         better = float(np.max(ll)) - at_estimate
         if same or better < -s.rival_margin:
             return None
-        found = (f"with each pose choosing its own camera masks among the image's proposals, a pose {moved:.2f} mm / "
-                 f"{turned:.2f} deg from the estimate")
+        scored = "with each pose choosing its own camera masks among the image's proposals, "
         if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
             rival = RivalMode(frame.index, moved, turned, -better)
-            return ModeSwitch(warning(
-                frame.index, "rival_mode",
-                f"{found} explains the frame {rival.comparison}: until a later check rules "
-                "it out, the covariance is the grasp prior's spread", translation_mm=moved, rotation_deg=turned,
-                nats_below=-better, ratio=better), rival=rival)
+            return ModeSwitch(rival.warning(scored), rival=rival)
+        found = f"{scored}a pose {moved:.2f} mm / {turned:.2f} deg from the estimate"
         earlier = self._earlier_likelihoods()
 
         def held(lead: float, before: float) -> ModeSwitch:

@@ -271,12 +271,14 @@ class RivalMode:
     rotation_deg: float
     nats_below: float
 
-    def warning(self) -> dict:
-        """The frame's ``rival_mode`` warning record."""
+    def warning(self, scored: str = "") -> dict:
+        """The frame's ``rival_mode`` warning record; ``scored`` opens its sentence with how the
+        poses were scored when not by the frame's likelihood (the mode check's terms)."""
         return warning(
             self.frame, "rival_mode",
-            f"another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate explains the "
-            f"sensors {self.comparison}: until a later check rules it out, the covariance is the grasp prior's spread",
+            f"{scored}another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate "
+            f"explains the sensors {self.comparison}: until a later check rules it out, the covariance is the grasp "
+            "prior's spread",
             translation_mm=self.translation_mm, rotation_deg=self.rotation_deg, nats_below=self.nats_below,
             ratio=-self.nats_below,
         )
