@@ -97,7 +97,7 @@ def test_readme_insertion_rows_are_the_committed_results(method, folder):
     rates = [100 * per[o]["success_rate"] for o in objects]
     first = [100 * per[o]["first_attempt_rate"] for o in objects]
     readme = (root / "README.md").read_text().splitlines()
-    row = f"| {method} | " + " | ".join(f"{v:.0f}" for v in rates) + f" | **{np.mean(rates):.0f}** |"
+    row = f"| {method} | " + " | ".join(f"{v:.0f}" for v in rates) + f" | **{np.mean(rates):.1f}** |"
     assert row in readme, row
     row = f"| {method} success at the first attempt, % | " + " | ".join(f"{v:.0f}" for v in first) + \
         f" | {np.mean(first):.0f} |"
