@@ -679,9 +679,13 @@ def benchmark_group() -> None:
                    "(first frame and later frames apart), the wall-over-log-time ratio and the masking backends' "
                    "time per frame.")
 @click.option("--max-frames", type=click.IntRange(min=2), help="With --log: only the first frames.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="With --log: change one setting of --config for the run, e.g. --set search.rival_every=0 (a "
+                   "dotted config key, a YAML value; repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON for scripts.")
 def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: int, no_reference: bool,
-                        log_path: Path | None, max_frames: int | None, as_json: bool) -> None:
+                        log_path: Path | None, max_frames: int | None, settings: tuple[str, ...],
+                        as_json: bool) -> None:
     """Particle x sensor evaluations per second (render + IoU in a region of interest) of the
     batched renderer, beside one pyrender call per particle, for 2 cameras and 2 tactile sensors
     looking at the object of --config (default: the simulator's cube). With --log, the estimate's
@@ -692,8 +696,10 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
     if log_path is not None:
         if config_path is None:
             raise MvtopError("--log needs --config (the estimate runs with it)")
-        _profile_estimate(log_path, config_path, max_frames, as_json)
+        _profile_estimate(log_path, config_path, max_frames, settings, as_json)
         return
+    if settings:
+        raise MvtopError("--set needs --log (it changes the config of the estimate that --log times)")
 
     from .benchmarks.render_speed import benchmark_render
 
@@ -731,16 +737,17 @@ def benchmark_speed_cmd(config_path: Path | None, particles_list: str, repeats: 
                    f"{ref or float('nan'):>17.0f} {ratio}")
 
 
-def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None, as_json: bool) -> None:
+def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None, settings: tuple[str, ...],
+                      as_json: bool) -> None:
     """``benchmark speed --log``: the estimate's time per stage, and the masking backends'."""
     import json
     import os
 
     from .benchmarks.frame_profile import profile_estimate
     from .benchmarks.masking_speed import masking_speed
-    from .config import load_config
+    from .config import load_config, parse_settings
 
-    cfg = load_config(config_path)
+    cfg = load_config(config_path, parse_settings(settings))
     with _progress(f"profile {log_path.name}") as update:
         update(0, 2)
         prof = profile_estimate(log_path, cfg, max_frames)
@@ -756,7 +763,8 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
     first, later = prof["first_frame"], prof.get("later_frames_mean") or {}
     click.echo(f"{'stage [ms per frame]':<28} {'first frame':>12} {'later (mean)':>13}")
     names = (("read_s", "read and decode"), ("masking_s", "masking (observation)"), ("search_s", "searches"),
-             ("filter_s", "prediction + refinement"), ("likelihood_s", "  of which likelihood"),
+             ("filter_s", "prediction + refinement"), ("diagnostics_s", "diagnostics and checks"),
+             ("likelihood_s", "  likelihood, in all of these"),
              ("step_s", "whole step"))
     for key, label in names:
         click.echo(f"{label:<28} {1e3 * first[key]:>12.1f} {1e3 * later.get(key, float('nan')):>13.1f}")

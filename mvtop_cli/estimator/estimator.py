@@ -91,7 +91,9 @@ class FrameEstimate:
     unpinned: tuple[int, int] = (0, 0)
     # what the last rival check found (None: no rival, or no check yet; ``search.rival_every``)
     rival: RivalMode | None = None
-    # wall seconds per stage of this frame and the likelihood's counts (``Estimator.step``)
+    # wall seconds per stage of this frame, which add up to the step (masking, searches, prediction and
+    # refinement, diagnostics: what follows the filter but the rival check's search), and the likelihood's
+    # counts (``Estimator.step``)
     timings: dict = field(default_factory=dict)
     # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
     # keeps them (``mvtop estimate --debug-images``: ``pipelines.debug_images.frame_masks``)
@@ -207,6 +209,7 @@ class Estimator:
             result, likelihood, observation = switch.result, switch.likelihood, switch.observation
         self.last_likelihood = likelihood  # for diagnostics: the frame's likelihood at any pose, e.g. the truth's
         t_filter = time.perf_counter()
+        search_before_checks = self._search_s  # the rival check below searches too
         counts = {"invalid_log_likelihood": likelihood.invalid, "evaluated_poses": likelihood.evaluated}
         warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, self.cfg.filter.num_particles)
         flags = list(result.flags)
@@ -274,6 +277,7 @@ class Estimator:
         n = len(result.particles.poses)
         keep = self.rng.choice(n, size=min(self.cfg.output.track_particles, n), replace=False)
         keep.sort()
+        t_end = time.perf_counter()
         return FrameEstimate(
             index=frame.index, stamp_ns=frame.stamp_ns, T_ee_object=est, T_world_object=frame.T_world_ee @ est,
             covariance=covariance, ess=float(result.ess), contact=frame.contact,
@@ -283,9 +287,10 @@ class Estimator:
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
             unpinned=self.unpinned, rival=self.rival,
             timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
-                     "filter_s": t_filter - t_masks - self._search_s, "likelihood_s": likelihood.seconds,
-                     "likelihood_calls": likelihood.calls, "poses_scored": likelihood.evaluated,
-                     "step_s": time.perf_counter() - t_step},
+                     "filter_s": t_filter - t_masks - search_before_checks,
+                     "diagnostics_s": t_end - t_filter - (self._search_s - search_before_checks),
+                     "likelihood_s": likelihood.seconds, "likelihood_calls": likelihood.calls,
+                     "poses_scored": likelihood.evaluated, "step_s": t_end - t_step},
         )
 
     def resume_after(self, last: FrameEstimate) -> None:

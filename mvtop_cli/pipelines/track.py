@@ -87,14 +87,15 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
                                           "rows": frames}}
 
 
-STAGES = ("read_s", "masking_s", "search_s", "filter_s", "likelihood_s", "step_s")
+STAGES = ("read_s", "masking_s", "search_s", "filter_s", "diagnostics_s", "likelihood_s", "step_s")
 
 
 def stage_timing(results, startup_s: float) -> dict:
     """Where the time went: ``startup_s`` (meshes, contact grid, log index) and, for the first
     frame and as the mean over the later frames, the wall seconds per stage (``read_s`` decoding
     the frame, ``masking_s`` the observation, ``search_s`` the searches, ``filter_s`` prediction
-    and refinement, ``likelihood_s`` all scoring inside those two, ``step_s`` the whole step),
+    and refinement, ``diagnostics_s`` the evidence diagnostic and the checks after the filter but
+    their searches (the four add up to ``step_s``, the whole step), ``likelihood_s`` all scoring),
     the likelihood calls and poses scored; ``log_s`` the time the frames span and
     ``wall_over_log`` the frames' wall time (reading and steps, after the first) over it."""
     rows = [r.timings for r in results if r.timings]
