@@ -31,11 +31,13 @@ cube, 1.5x for the shaft peg, 1.1x for the plug) and lose on fine meshes and sma
 
 Both kernels can also take a per-pixel *limit* (an inverse depth at least the threshold, e.g.
 a tactile pad's measured indentation): the observed pixels that some fragment comes nearer than
-the limit are taken back from the area and the intersection, once each, in the same pass
-(``_over_limit``). Such a pixel is always in the mask (the fragment passes the threshold too).
-The test is per observed pixel of each row a triangle spans, skipping blocks of
-``LIMIT_BLOCK`` columns where the row's largest inverse depth (at one end, by the same
-monotonicity) does not exceed the block's least limit (``limit_blocks``).
+the limit are taken back from the area and the intersection, once each, in the same pass.
+Such a pixel is always in the mask (the fragment passes the threshold too). The test is per
+observed pixel of each row a triangle spans, skipped where the row's largest inverse depth (at
+one end, by the same monotonicity) does not exceed the least limit (``limit_blocks``: per
+block of ``LIMIT_BLOCK`` columns): the byte kernel tests each pixel as it sets it, computing
+its inverse depth once (``_row_may_pass`` per row); the runs kernel, which sets no pixel one
+by one, in a pass of its own per row and block (``_over_limit``).
 
 Cost per pose: a transform per vertex, a plane test per face (back faces of closed meshes are
 culled) and roughly 50 ns per front face plus 1-3 ns per covered pixel (with runs: a few word
@@ -177,6 +179,18 @@ def _over_limit(mask, obs, lim, lmin, yi, base, a, b, izy, P, u0, bisect):
     return n
 
 
+@njit(cache=True, inline="always")
+def _row_may_pass(lmin, yi, a, b, izy, P, u0):
+    """Whether a fragment of row ``yi``, columns ``a .. b``, with the inverse depth ``izy + P (x -
+    u0)`` (monotone in ``x``: its largest at one end) may pass the least limit ``lmin`` of the
+    blocks it spans (``limit_blocks``)."""
+    top = max(izy + P * (a - u0), izy + P * (b - u0))
+    for k in range(a // LIMIT_BLOCK, b // LIMIT_BLOCK + 1):
+        if not top <= lmin[yi, k]:
+            return True
+    return False
+
+
 def limit_blocks(lim: np.ndarray, obs: np.ndarray) -> np.ndarray:
     """The least of the limit ``lim`` (h, w) over the observed pixels ``obs`` (h, w) of each block
     of ``LIMIT_BLOCK`` columns of a row: (h, ceil(w / LIMIT_BLOCK)) float64, ``inf`` for a block
@@ -199,8 +213,8 @@ def _raster_triangle(
     (row ``y`` at word ``y * nw``) for a threshold equal to ``thr_min`` everywhere. The last
     two return (0, 0). ``MODE_LIMIT`` is ``MODE_MASK`` (``mask`` uint8) with ``zbuf`` a second
     per-pixel inverse depth, at least ``thr``: an observed pixel (``obs`` 0 or 1) that a fragment
-    comes nearer than it is taken back from both counts, once (``_over_limit``; ``lmin`` the
-    ``limit_blocks`` of ``zbuf`` and ``obs``). ``MODE_BITS_LIMIT`` is ``MODE_BITS`` returning
+    comes nearer than it is taken back from both counts, once, tested as the pixel is set (``lmin``
+    the ``limit_blocks`` of ``zbuf`` and ``obs``). ``MODE_BITS_LIMIT`` is ``MODE_BITS`` returning
     that take-back, (-n, -n), with ``mask`` (uint8) marking those pixels."""
     if use_thr and max(iz0, max(iz1, iz2)) <= thr_min:
         return 0, 0
@@ -258,6 +272,26 @@ def _raster_triangle(
                     if not (izy + P * (xi - u0) <= thr_min):
                         acc |= np.uint64(1) << np.uint64(xi & 63)
                 bits[row + word] |= acc
+        elif mode == MODE_LIMIT:
+            # The byte mask and the limit in one pass: the pixel's inverse depth is computed once.
+            # The limit is tested only in a row where some observed pixel's may be passed.
+            ilo, ihi = int(lo), int(hi)
+            test = not bisect or _row_may_pass(lmin, yi, ilo, ihi, izy, P, u0)
+            for xi in range(ilo, ihi + 1):
+                idx = base + xi
+                iz = izy + P * (xi - u0)
+                m = mask[idx]
+                if m == 0:
+                    if use_thr and iz <= thr[idx]:
+                        continue  # nor can it pass the limit, which is at least the threshold
+                    mask[idx] = 1
+                    area += 1
+                    inter += obs[idx]
+                    m = 1
+                if test and m != _OVER and obs[idx] and not iz <= zbuf[idx]:
+                    mask[idx] = _OVER
+                    area -= 1
+                    inter -= 1
         else:
             for xi in range(int(lo), int(hi) + 1):
                 idx = base + xi
@@ -273,7 +307,7 @@ def _raster_triangle(
                     mask[idx] = True
                     area += 1
                     inter += obs[idx]
-        if limit:
+        if mode == MODE_BITS_LIMIT:
             over = _over_limit(mask, obs, zbuf, lmin, yi, base, int(lo), int(hi), izy, P, u0, bisect)
             area -= over
             inter -= over
