@@ -25,7 +25,8 @@ Each command must end in one of these outcomes:
 Anything else is a failure: ``crash`` (any other exception: a traceback), ``hang`` (over
 ``--timeout`` seconds), ``died`` (the process was killed, e.g. by a signal), ``unclear``
 (exit 2 without that one line), ``partial`` (a failed run left an output file),
-``noisy`` (a successful run printed something other than ``mvtop: warning:`` lines).
+``noisy`` (a successful run printed something other than ``mvtop: warning:`` lines and the
+plain progress lines a run longer than a minute prints off a terminal, ``PROGRESS_LINE``).
 The script prints the counts per command and outcome, the time taken and the most
 frequent kinds of error; for each distinct failure it keeps the smallest input, simplifies
 it while it still fails (``Spec.smaller``), writes it to ``--keep`` with its description
@@ -74,6 +75,9 @@ COMMANDS = ("inspect", "estimate")
 GOOD = ("ok", "skipped", "error")
 FAILURES = ("crash", "hang", "died", "unclear", "partial", "noisy")
 OUTPUT_FILES = ("track.mcap", "track.csv", "summary.json", "config.resolved.yaml")
+# The plain progress line of a long run on stderr (``cli._progress``), e.g.
+# ``estimate base.mcap: 12/30 (40 %), 1 min 2 s elapsed, about 1 min 30 s left``.
+PROGRESS_LINE = re.compile(r"^[a-z][\w -]* [^:]+: \d+/\d+ \(\d+ %\), .+ elapsed(, about .+ left)?$")
 
 # --- the base scene ------------------------------------------------------------------------
 
@@ -1018,7 +1022,7 @@ def classify(command: str, result: dict, log: Path, out_dir: Path | None) -> tup
     stderr = result["stderr"].strip().splitlines()
     files = _files_in(out_dir) if out_dir is not None else []
     if result["code"] == 0:
-        other = [ln for ln in stderr if not ln.startswith("mvtop: warning:")]
+        other = [ln for ln in stderr if not ln.startswith("mvtop: warning:") and not PROGRESS_LINE.match(ln)]
         if other:
             return "noisy", "\n".join(stderr)
         if out_dir is None:

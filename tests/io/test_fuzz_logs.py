@@ -83,6 +83,11 @@ def test_the_harness_reports_failures(env, tmp_path):
     assert fuzz.classify("inspect", {**err, "stderr": "libpng error: x\n" + err["stderr"]}, log, None)[0] == "unclear"
     assert fuzz.classify("inspect", {**err, "stderr": "mvtop: error: corrupt chunk\n"}, log, None)[0] == "unclear"
     assert fuzz.classify("inspect", {**ok, "stderr": "Corrupt JPEG data\n"}, log, None)[0] == "noisy"
+    # a run longer than a minute prints plain progress lines off a terminal: documented output, not noise
+    progress = ("estimate base.mcap: 12/30 (40 %), 1 min 2 s elapsed, about 1 min 30 s left\n"
+                "estimate base.mcap: 30/30 (100 %), 2 min 10 s elapsed\n")
+    assert fuzz.classify("inspect", {**ok, "stderr": progress}, log, None) == ("ok", "")
+    assert fuzz.classify("inspect", {**ok, "stderr": progress + "Corrupt JPEG data\n"}, log, None)[0] == "noisy"
     out = tmp_path / "out"
     out.mkdir()
     (out / "track.csv").write_text("partial")
