@@ -274,7 +274,7 @@ def _raster_triangle(
                 bits[row + word] |= acc
         elif mode == MODE_LIMIT:
             # The byte mask and the limit in one pass: the pixel's inverse depth is computed once.
-            # The limit is tested only in a row where some observed pixel's may be passed.
+            # The limit is tested only in rows where a fragment may come nearer than some observed pixel's.
             ilo, ihi = int(lo), int(hi)
             test = not bisect or _row_may_pass(lmin, yi, ilo, ihi, izy, P, u0)
             for xi in range(ilo, ihi + 1):
