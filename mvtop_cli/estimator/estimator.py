@@ -17,12 +17,14 @@ disagrees with the estimate the others agree on adds the dissent search's poses 
 Every ``search.rival_every`` frames a fresh search of the prior, with a generator of its own,
 looks for another pose that explains the frame about as well as the estimate (a rival mode):
 it changes no estimate, only the reported covariance and the warnings (with
-``search.check_at_contact`` also on the first frame of each contact). Before it, with touch
-and camera proposals, the mode check (``search.mode_check``) searches the prior with every pose
-choosing its own camera masks among the belief-free proposals (``likelihood.ProposalLikelihood``):
-the frame's masks were chosen by the belief, so a belief in a wrong mode explains them best;
-when a far pose beats the estimate by ``search.mode_margin`` on equal terms, the frame is
-redone from the searched poses, with masks they choose. In free air the grasp holds, so the
+``search.check_at_contact`` also on the first frame of each contact). With touch and camera
+proposals, the mode check (``search.mode_check``) takes its place: it searches the prior with
+every pose choosing its own camera masks among the belief-free proposals
+(``likelihood.ProposalLikelihood``), since the frame's masks were chosen by the belief, so a
+belief in a wrong mode explains them best; when a far pose beats the estimate by
+``search.mode_margin`` on equal terms, the frame is redone from the searched poses, with masks
+they choose, and a far pose it cannot tell from the estimate stands as a rival until a later
+mode check finds the estimate's own mode. In free air the grasp holds, so the
 switch must also clear the margin over the frames since the last contact, scored the same way
 (``search.mode_history_frames``): one frame whose proposals take in something beside the part
 cannot move a belief the frames before it agree on.
@@ -89,7 +91,8 @@ class FrameEstimate:
     # watch, and the frames so far whose evidence left some pose axis open, of those with evidence
     consistency: dict = field(default_factory=dict)
     unpinned: tuple[int, int] = (0, 0)
-    # what the last rival check found (None: no rival, or no check yet; ``search.rival_every``)
+    # the rival mode the checks found and none has ruled out yet (None: no rival, or no check yet;
+    # ``search.rival_every``; the mode check's, where it searches)
     rival: RivalMode | None = None
     # wall seconds per stage of this frame, which add up to the step (masking, searches, prediction and
     # refinement, diagnostics: what follows the filter but the rival check's search), and the likelihood's
@@ -106,7 +109,7 @@ class ModeSwitch:
     ``mode_switch`` warning with the redone frame's new filter ``result`` and the
     ``likelihood`` and ``observation`` of the masks chosen by the searched poses; or, with
     those None and the searched pose as a ``rival`` (it stands as a rival mode, the covariance
-    the grasp prior's spread, until a later rival check rules it out), a ``mode_held`` warning
+    the grasp prior's spread, until a later mode check rules it out), a ``mode_held`` warning
     (the earlier frames held the switch back: the frame and the frames before disagree) or a
     ``rival_mode`` warning (the pose scores too close to the estimate to switch on or to rule
     out)."""
@@ -163,7 +166,7 @@ class Estimator:
         self._search_s = 0.0  # search time of the current frame
         self.use_contact = "contact" in cfg.modalities
         self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
-        self.rival: RivalMode | None = None  # the last rival check's finding
+        self.rival: RivalMode | None = None  # the rival no check has ruled out yet
         self.in_contact = False  # the last frame's contact state (search.check_at_contact)
         # the frames since the last contact, for the mode check (search.mode_history_frames; none kept
         # where the check never runs)
@@ -203,7 +206,7 @@ class Estimator:
         result = self._assimilate(ps, first, contact, bool(observation.sensors), likelihood)
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
-        switch = self._mode_check(frame, result, likelihood, contact) if checked else None
+        switch, mode_ruled_out = self._mode_check(frame, result, likelihood, contact) if checked else (None, None)
         switched = switch is not None and switch.result is not None
         if switched:
             result, likelihood, observation = switch.result, switch.likelihood, switch.observation
@@ -250,7 +253,9 @@ class Estimator:
         suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
         if suspect:
             flags.append("suspect_estimate")
-        if due and evidence is not None:
+        # where the mode check searched, it judges rivals on belief-free evidence (search.rival_beside_mode_check)
+        judged = mode_ruled_out is not None and not self.cfg.search.rival_beside_mode_check
+        if due and evidence is not None and not judged:
             rival, ruled_out = self._rival_check(frame.index, likelihood, result.estimate)
             if rival is not None:
                 warnings.append(rival.warning())
@@ -258,6 +263,8 @@ class Estimator:
                 self.rival = rival
         if switch is not None and switch.rival is not None:
             self.rival = switch.rival
+        elif judged and mode_ruled_out:
+            self.rival = None
         if self.rival is not None:
             flags.append("rival_mode")
             suspect = True
@@ -297,7 +304,7 @@ class Estimator:
         """Continue after frame ``last`` with the state it carried over: the sensor consistency
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
         same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
-        the last rival check's finding (``FrameEstimate.rival``) and the contact state
+        the rival no check has ruled out yet (``FrameEstimate.rival``) and the contact state
         (``search.check_at_contact``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
@@ -412,7 +419,7 @@ class Estimator:
         return (RivalMode(index, moved, turned, below) if below <= s.rival_margin else None), False
 
     def _mode_check(self, frame: Frame, result: StepResult, likelihood: Likelihood,
-                    contact: bool | None) -> ModeSwitch | None:
+                    contact: bool | None) -> tuple[ModeSwitch | None, bool | None]:
         """The mode check (``search.mode_check``): a fresh search of the grasp prior
         (``search.mode_init_factor``, ``mode_rounds``), from a generator of its own, with every pose
         choosing its own camera masks among the frame's belief-free proposals
@@ -429,7 +436,10 @@ class Estimator:
         Returns the redo, the hold (``mode_held``: the earlier frames alone kept the estimate), a
         rival (the best pose scores from ``search.rival_margin`` below the estimate to
         ``mode_margin`` above it: the frame's belief-free evidence cannot tell the two apart), or
-        None: the search found the estimate's own mode, or nothing within the rival margin.
+        None: the search found the estimate's own mode, or nothing within the rival margin; and,
+        as ``_rival_check`` does, whether an earlier rival is ruled out: the search's best pose is
+        the estimate's own mode, or the frame was redone from the searched poses (None: no search,
+        for want of proposals or of a finite score; the rival check judges the frame instead).
         On simulated grasps whose first frame settled in a wrong mode the belief's own masks favour
         it by tens of nats, while on these terms the truth wins by as much (README: Mode check). The
         earlier frames can only hold a switch back: in free air one in-hand pose explains them all,
@@ -442,23 +452,23 @@ class Estimator:
         s, f = self.cfg.search, self.cfg.filter
         proposals = self.observations.proposal_sets(frame)
         if not proposals:
-            return None
+            return None, None
         free = ProposalLikelihood(likelihood, proposals)
         bounded = self.prior.bounded(free)
         rng = np.random.default_rng([f.seed, frame.index, _MODE_STREAM])
         poses, ll = self._prior_search(bounded, rng, s.mode_init_factor, s.mode_rounds)
         if not np.isfinite(ll).any():
-            return None
+            return None, None
         at_estimate = float(bounded(result.estimate[None])[0])
         best = poses[int(np.argmax(ll))]
         moved, turned, same = self._distance(best, result.estimate)
         better = float(np.max(ll)) - at_estimate
         if same or better < -s.rival_margin:
-            return None
+            return None, same
         scored = "with each pose choosing its own camera masks among the image's proposals, "
         if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
             rival = RivalMode(frame.index, moved, turned, -better)
-            return ModeSwitch(rival.warning(scored), rival=rival)
+            return ModeSwitch(rival.warning(scored), rival=rival), False
         found = f"{scored}a pose {moved:.2f} mm / {turned:.2f} deg from the estimate"
         earlier = self._earlier_likelihoods()
 
@@ -476,7 +486,7 @@ class Estimator:
 
         before = _gain(earlier, best, result.estimate)
         if better + before <= s.mode_margin:
-            return held(better, before)
+            return held(better, before), False
         t0 = time.perf_counter()
         generator = self.rng.bit_generator.state
         start = tempered_resample(poses, ll, f.num_particles, f.resampling, self.rng)
@@ -491,7 +501,7 @@ class Estimator:
         if gain <= s.mode_margin or gain + before <= s.mode_margin:
             self.consistency.factors, self.consistency.streak = saved
             self.rng.bit_generator.state = generator
-            return held(gain, before) if gain > s.mode_margin else None
+            return (held(gain, before) if gain > s.mode_margin else None), False
         redo_likelihood.add_counts(likelihood)
         record = warning(
             frame.index, "mode_switch",
@@ -499,7 +509,7 @@ class Estimator:
             f"from it ({gain:.1f} nats better than before) and the sensor consistency watch restarted",
             translation_mm=moved, rotation_deg=turned, nats_better=better, ratio=better,
         )
-        return ModeSwitch(record, redo, redo_likelihood, observation)
+        return ModeSwitch(record, redo, redo_likelihood, observation), True
 
     def _earlier_likelihoods(self) -> list[Callable[[np.ndarray], np.ndarray]]:
         """The mode check's terms on its earlier frames (``history``): per frame, the

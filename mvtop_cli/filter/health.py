@@ -313,8 +313,8 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
             return None
         return warning(
             None, "suspect_estimate",
-            f"at frame {rival.frame}, the last rival check, another pose {rival.translation_mm:.2f} mm / "
-            f"{rival.rotation_deg:.2f} deg from the estimate explained the sensors {rival.comparison}: the "
+            f"at frame {rival.frame} another pose {rival.translation_mm:.2f} mm / {rival.rotation_deg:.2f} deg from "
+            f"the estimate explained the sensors {rival.comparison}, and no later check ruled it out: the "
             "estimate may be either; its covariance is the grasp prior's spread (flag rival_mode); check it against "
             "another measurement before relying on it",
             rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,

@@ -25,10 +25,11 @@ def test_benchmark_speed_json_rows():
 
 def test_benchmark_speed_on_a_log_times_every_stage():
     root = Path(__file__).resolve().parents[2]
-    # a rival check on the second frame (its search runs after the filter): every stage is timed apart
+    # a rival check on the second frame (its search runs after the filter; beside the mode check, which
+    # otherwise takes its place there): every stage is timed apart
     proc = run("benchmark", "speed", "--config", str(root / "configs" / "conn2.yaml"), "--log",
                str(root / "sample_logs" / "conn2.mcap"), "--max-frames", "3", "--set", "search.rival_every=2",
-               "--json")
+               "--set", "search.rival_beside_mode_check=true", "--json")
     assert proc.returncode == 0, proc.stderr
     prof = json.loads(proc.stdout)
     assert prof["frames_processed"] == 3 and prof["frames"] == 3

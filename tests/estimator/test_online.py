@@ -133,14 +133,56 @@ def test_a_rival_stands_until_a_check_finds_the_estimates_own_mode(monkeypatch):
     script = iter([(rival, False), (None, False), (None, True)])  # the checks at frames 1, 3 and 5
     monkeypatch.setattr(Estimator, "_rival_check", lambda self, index, likelihood, T: next(script))
     cfg = load_config(ROOT / "configs" / "conn2.yaml")
-    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40), search=replace(cfg.search, rival_every=2))
-    with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
-        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
-        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
-        steps = [estimator.step(frame) for frame, _ in zip(reader, range(6))]
+    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40),
+                  search=replace(cfg.search, rival_every=2, mode_check=False))
+    steps = _conn2_steps(cfg, 6)
     assert [s.rival for s in steps] == [None, rival, rival, rival, rival, None]
     assert ["rival_mode" in s.flags for s in steps] == [False, True, True, True, True, False]
     assert [w["frame"] for s in steps for w in s.warnings if w["kind"] == "rival_mode"] == [1]
+
+
+def _conn2_steps(cfg, frames: int) -> list[FrameEstimate]:
+    """The first ``frames`` frames of the conn2 sample stepped online with ``cfg``."""
+    with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+        return [estimator.step(frame) for frame, _ in zip(reader, range(frames))]
+
+
+@pytest.mark.parametrize("beside", [False, True])
+def test_where_the_mode_check_searches_it_judges_rivals(monkeypatch, beside):
+    """With touch and camera proposals the mode check, on belief-free camera evidence, takes the
+    rival check's place (``search.rival_beside_mode_check`` off): its rival stands through a check
+    that rules nothing out and goes when one finds the estimate's own mode; a check that could not
+    search (no proposals) leaves the frame to the rival check. With the setting on, the rival
+    check runs beside it on every checked frame, as before."""
+    from mvtop_cli.estimator.estimator import ModeSwitch
+    from mvtop_cli.filter.health import RivalMode
+
+    rival = RivalMode(1, 2.0, 1.0, -0.5)
+    # the mode checks at frames 1, 3, 5 and 7: a rival; nothing ruled out; the estimate's own mode; no search
+    script = iter([(ModeSwitch(rival.warning("scored so, "), rival=rival), False), (None, False), (None, True),
+                   (None, None)])
+    monkeypatch.setattr(Estimator, "_mode_check", lambda self, frame, result, likelihood, contact: next(script))
+    checked = []
+
+    def rival_check(self, index, likelihood, T):
+        checked.append(index)
+        return None, False
+
+    monkeypatch.setattr(Estimator, "_rival_check", rival_check)
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40),
+                  search=replace(cfg.search, rival_every=2, rival_beside_mode_check=beside))
+    steps = _conn2_steps(cfg, 8)
+    if beside:  # only a rival check that finds the estimate's own mode clears the rival: none here
+        assert checked == [1, 3, 5, 7]
+        assert [s.rival for s in steps] == [None] + [rival] * 7
+    else:
+        assert checked == [7]
+        assert [s.rival for s in steps] == [None, rival, rival, rival, rival, None, None, None]
+    assert [w["frame"] for s in steps for w in s.warnings if w["kind"] == "rival_mode"] == [1]
+    assert "scored so, another pose 2.00 mm / 1.00 deg" in steps[1].warnings[-1]["detail"]
 
 
 @pytest.mark.parametrize("at_contact, checked", [(False, []), (True, [2, 5])])

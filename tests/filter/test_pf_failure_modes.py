@@ -270,7 +270,7 @@ def test_a_rival_mode_is_a_frame_warning_and_makes_the_run_suspect():
     # the run-level record: raised by the last check's rival even where every frame pinned the estimate
     run = suspect_warning([True] * 30, 0.4, rival)
     assert run["kind"] == "suspect_estimate" and run["frame"] is None and run["rival_frame"] == 19
-    assert "at frame 19, the last rival check" in run["detail"]
+    assert "at frame 19 another pose" in run["detail"] and "no later check ruled it out" in run["detail"]
     assert suspect_warning([True] * 30, 0.4, None) is None
     # the share of open frames decides first, whatever the rival
     assert "4 of 10 frames" in suspect_warning([True] * 6 + [False] * 4, 0.4, rival)["detail"]
