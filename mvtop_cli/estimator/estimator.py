@@ -412,11 +412,13 @@ class Estimator:
         poses, ll = self._prior_search(bounded, np.random.default_rng([self.cfg.filter.seed, index, _RIVAL_STREAM]))
         if not np.isfinite(ll).any():
             return None, False
-        moved, turned, same = self._distance(poses[int(np.argmax(ll))], T_ee_object)
+        best = poses[int(np.argmax(ll))]
+        moved, turned, same = self._distance(best, T_ee_object)
         below = float(bounded(T_ee_object[None])[0] - np.max(ll))
         if same:
             return None, True
-        return (RivalMode(index, moved, turned, below) if below <= s.rival_margin else None), False
+        rival = RivalMode(index, moved, turned, below, se3.invert(T_ee_object) @ best)
+        return (rival if below <= s.rival_margin else None), False
 
     def _mode_check(self, frame: Frame, result: StepResult, likelihood: Likelihood,
                     contact: bool | None) -> tuple[ModeSwitch | None, bool | None]:
@@ -436,10 +438,10 @@ class Estimator:
         Returns the redo, the hold (``mode_held``: the earlier frames alone kept the estimate), a
         rival (the best pose scores from ``search.rival_margin`` below the estimate to
         ``mode_margin`` above it: the frame's belief-free evidence cannot tell the two apart), or
-        None: the search found the estimate's own mode, or nothing within the rival margin; and,
-        as ``_rival_check`` does, whether an earlier rival is ruled out: the search's best pose is
-        the estimate's own mode, or the frame was redone from the searched poses (None: no search,
-        for want of proposals or of a finite score; the rival check judges the frame instead).
+        None: the search found the estimate's own mode, or nothing within the rival margin; and
+        whether the rival standing from an earlier check is ruled out (``_rules_out``), or the
+        frame was redone from the searched poses (None: no search, for want of proposals or of a
+        finite score; the rival check judges the frame instead).
         On simulated grasps whose first frame settled in a wrong mode the belief's own masks favour
         it by tens of nats, while on these terms the truth wins by as much (README: Mode check). The
         earlier frames can only hold a switch back: in free air one in-hand pose explains them all,
@@ -464,10 +466,11 @@ class Estimator:
         moved, turned, same = self._distance(best, result.estimate)
         better = float(np.max(ll)) - at_estimate
         if same or better < -s.rival_margin:
-            return None, same
+            return None, self._rules_out(bounded, result.estimate, at_estimate, same)
         scored = "with each pose choosing its own camera masks among the image's proposals, "
+        T_estimate_best = se3.invert(result.estimate) @ best
         if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
-            rival = RivalMode(frame.index, moved, turned, -better)
+            rival = RivalMode(frame.index, moved, turned, -better, T_estimate_best)
             return ModeSwitch(rival.warning(scored), rival=rival), False
         found = f"{scored}a pose {moved:.2f} mm / {turned:.2f} deg from the estimate"
         earlier = self._earlier_likelihoods()
@@ -482,7 +485,7 @@ class Estimator:
                 "the estimate stands; until a later check rules that pose out, the covariance is the grasp prior's "
                 "spread", translation_mm=moved, rotation_deg=turned, nats_better=lead,
                 earlier_frames=len(earlier), earlier_nats_better=before, ratio=lead),
-                rival=RivalMode(frame.index, moved, turned, -lead))
+                rival=RivalMode(frame.index, moved, turned, -lead, T_estimate_best))
 
         before = _gain(earlier, best, result.estimate)
         if better + before <= s.mode_margin:
@@ -510,6 +513,21 @@ class Estimator:
             translation_mm=moved, rotation_deg=turned, nats_better=better, ratio=better,
         )
         return ModeSwitch(record, redo, redo_likelihood, observation), True
+
+    def _rules_out(self, bounded: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray, at_estimate: float,
+                   same: bool) -> bool:
+        """Whether a mode check that found no rival rules out the one standing (``self.rival``):
+        that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now is (its
+        ``T_estimate_rival``), scores more than ``search.rival_margin`` nats below the estimate's
+        ``at_estimate`` on the check's belief-free terms ``bounded``. The check's search itself
+        may end in a third, lower pose without having looked at the rival's; a rival without a
+        pose is ruled out as the rival check rules one out, by a search that ends in the
+        estimate's own mode (``same``)."""
+        rival = self.rival
+        if rival is None or rival.T_estimate_rival is None:
+            return same
+        score = float(bounded((T_ee_object @ rival.T_estimate_rival)[None])[0])
+        return at_estimate - score > self.cfg.search.rival_margin
 
     def _earlier_likelihoods(self) -> list[Callable[[np.ndarray], np.ndarray]]:
         """The mode check's terms on its earlier frames (``history``): per frame, the

@@ -264,12 +264,15 @@ def count_warnings(warnings: list[dict]) -> dict[str, int]:
 class RivalMode:
     """What a frame's rival check found (``search.rival_every``): the best pose of a fresh search
     of the grasp prior lies ``translation_mm`` / ``rotation_deg`` from the estimate (modulo the
-    part's symmetries) and scores ``nats_below`` under it (negative: above it) at ``frame``."""
+    part's symmetries) and scores ``nats_below`` under it (negative: above it) at ``frame``.
+    ``T_estimate_rival`` (4, 4), when known, is that pose in the estimate's object frame, so a
+    later check can score the same hypothesis where the estimate has moved to."""
 
     frame: int
     translation_mm: float
     rotation_deg: float
     nats_below: float
+    T_estimate_rival: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def warning(self, scored: str = "") -> dict:
         """The frame's ``rival_mode`` warning record; ``scored`` opens its sentence with how the

@@ -207,3 +207,35 @@ def test_the_checks_run_at_each_contact_onset_when_set(monkeypatch, at_contact, 
         for (frame, _), touching in zip(zip(reader, range(6)), contact):
             estimator.step(replace(frame, contact=touching))
     assert seen == checked
+
+
+def test_a_mode_check_rules_out_the_standing_rival_by_scoring_it_where_the_estimate_now_is():
+    """A mode check that finds no rival scores the standing one itself, carried along with the
+    estimate (``RivalMode.T_estimate_rival``): more than ``search.rival_margin`` below the
+    estimate rules it out, within the margin it stands, whatever the check's own search found;
+    a rival without a pose goes only when the search ends in the estimate's own mode."""
+    from mvtop_cli.filter.health import RivalMode
+    from mvtop_cli.geometry import se3
+
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    estimator = Estimator.from_config(cfg)
+    margin = cfg.search.rival_margin
+    offset = se3.make_pose(np.eye(3), [0.002, 0.0, 0.0])  # the rival: 2 mm along the estimate's x
+    T_estimate = se3.make_pose(np.eye(3), [0.01, -0.02, 0.03])  # where the estimate has moved to
+    seen = []
+
+    def scores(below: float):
+        def bounded(T):
+            seen.append(T.copy())
+            return np.full(len(T), -below)
+        return bounded
+
+    for below, ruled_out in ((margin - 1.0, False), (margin + 1.0, True)):
+        estimator.rival = RivalMode(9, 2.0, 0.0, 0.5, offset)
+        for same in (False, True):
+            assert estimator._rules_out(scores(below), T_estimate, 0.0, same) is ruled_out
+    np.testing.assert_allclose(seen[0][0], T_estimate @ offset)
+    estimator.rival = RivalMode(9, 2.0, 0.0, 0.5)
+    assert estimator._rules_out(scores(margin + 1.0), T_estimate, 0.0, False) is False
+    assert estimator._rules_out(scores(margin - 1.0), T_estimate, 0.0, True) is True
+    assert RivalMode(9, 2.0, 0.0, 0.5, offset) == RivalMode(9, 2.0, 0.0, 0.5)  # the pose is not compared
