@@ -517,28 +517,31 @@ class Estimator:
     def _rules_out(self, bounded: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray, at_estimate: float,
                    same: bool, index: int) -> bool:
         """Whether a mode check at frame ``index`` that found no rival rules out the one standing
-        (``self.rival``): around that hypothesis, carried to where the estimate ``T_ee_object``
-        (4, 4) now is (its ``T_estimate_rival``), the re-search check's local search
-        (``search.recheck_sigma_*``, ``recheck_rounds``; a generator of its own) on the check's
-        belief-free terms ``bounded`` finds no pose still beyond the rival distances within
-        ``search.rival_margin`` nats of the estimate's ``at_estimate``. The check's own search may
-        end in a third, lower pose without having looked at the rival's basin, and the part may
-        have slipped since (on simulated conn1 grasp 1053 a rival 3.07 mm away, 15 nats ahead at
-        contact onset, was 15 nats ahead again three frames later, while the carried pose, 0.46 mm
-        from it, scored 45 nats below the estimate). A rival without a pose is ruled out as the
-        rival check rules one out, by a search that ends in the estimate's own mode (``same``)."""
+        (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of its own)
+        around that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now is (its
+        ``T_estimate_rival``) and spread as the motion model under contact spreads a particle over
+        the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)), finds on the
+        check's belief-free terms ``bounded`` no pose still beyond the rival distances within
+        ``search.rival_margin`` nats of the estimate's ``at_estimate``. The check's own search of
+        the prior may end in a third, lower pose without having looked at the rival's narrow
+        basin, and the part may have slipped since: on simulated conn1 grasp 1053 the mode check
+        at contact onset (frame 16) found a pose 3.07 mm away 15 nats ahead (the truth); at frame
+        19 its search ended 3 nats below the estimate, the carried pose (0.46 mm from the truth)
+        scored 45 nats below, and the truth 15 nats above, which a search from the carried pose
+        reaches (0.2 mm / 0.5 deg wide, 3 rounds: 2.8 nats above the estimate; 1 mm / 3 deg: 30
+        below). A rival without a pose is ruled out as the rival check rules one out, by a search
+        that ends in the estimate's own mode (``same``)."""
         rival = self.rival
         if rival is None or rival.T_estimate_rival is None:
             return same
-        s = self.cfg.search
+        s, f = self.cfg.search, self.cfg.filter
         carried = T_ee_object @ rival.T_estimate_rival
-        start = ParticleSet(np.repeat(carried[None], self.cfg.filter.num_particles, axis=0),
-                            np.zeros(self.cfg.filter.num_particles))
-        rng = np.random.default_rng([self.cfg.filter.seed, index, _MODE_STREAM, _RIVAL_STREAM])
+        start = ParticleSet(np.repeat(carried[None], f.num_particles, axis=0), np.zeros(f.num_particles))
+        rng = np.random.default_rng([f.seed, index, _MODE_STREAM, _RIVAL_STREAM])
+        spread = np.sqrt(max(1, index - rival.frame))
         t0 = time.perf_counter()
-        sigma_r = np.radians(s.recheck_sigma_rotation_deg)
-        poses, ll = local_search(start, bounded, rng, s.recheck_sigma_translation_m, sigma_r,
-                                 **{**self.search, "rounds": s.recheck_rounds})
+        sigma_t, sigma_r = spread * f.sigma_high_translation_m, spread * np.radians(f.sigma_high_rotation_deg)
+        poses, ll = local_search(start, bounded, rng, sigma_t, sigma_r, **{**self.search, "rounds": s.mode_rounds})
         self._search_s += time.perf_counter() - t0
         apart = ~self._distances(poses, T_ee_object)[2] & np.isfinite(ll)
         return not apart.any() or at_estimate - float(np.max(ll[apart])) > s.rival_margin

@@ -211,11 +211,11 @@ def test_the_checks_run_at_each_contact_onset_when_set(monkeypatch, at_contact, 
 
 def test_a_mode_check_rules_out_the_standing_rival_by_searching_where_it_now_is():
     """A mode check that finds no rival searches around the standing one, carried along with the
-    estimate (``RivalMode.T_estimate_rival``): when the best pose there that is still a rival (1 mm
-    / 3 deg from the estimate) scores more than ``search.rival_margin`` below the estimate, it is
-    ruled out; within the margin it stands, whatever the check's own search found. Poses near the
-    estimate do not count. A rival without a pose goes only when the search ends in the
-    estimate's own mode."""
+    estimate (``RivalMode.T_estimate_rival``) and spread by the motion noise of the frames since:
+    when the best pose there that is still a rival (1 mm / 3 deg from the estimate) scores more
+    than ``search.rival_margin`` below the estimate, it is ruled out; within the margin it stands,
+    whatever the check's own search found. Poses near the estimate do not count. A rival without
+    a pose goes only when the search ends in the estimate's own mode."""
     from mvtop_cli.filter.health import RivalMode
     from mvtop_cli.geometry import se3
 
