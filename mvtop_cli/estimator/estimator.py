@@ -466,7 +466,7 @@ class Estimator:
         moved, turned, same = self._distance(best, result.estimate)
         better = float(np.max(ll)) - at_estimate
         if same or better < -s.rival_margin:
-            return None, self._rules_out(bounded, result.estimate, at_estimate, same, frame.index)
+            return None, self._rules_out(bounded, likelihood, result.estimate, same, frame.index)
         scored = "with each pose choosing its own camera masks among the image's proposals, "
         T_estimate_best = se3.invert(result.estimate) @ best
         if better <= s.mode_margin:  # too close to switch on, too close to rule out: a rival mode
@@ -485,7 +485,7 @@ class Estimator:
                 "the estimate stands; until a later check rules that pose out, the covariance is the grasp prior's "
                 "spread", translation_mm=moved, rotation_deg=turned, nats_better=lead,
                 earlier_frames=len(earlier), earlier_nats_better=before, ratio=lead),
-                rival=RivalMode(frame.index, moved, turned, -lead, T_estimate_best))
+                rival=RivalMode(frame.index, moved, turned, -lead, T_estimate_best, held=True))
 
         before = _gain(earlier, best, result.estimate)
         if better + before <= s.mode_margin:
@@ -514,36 +514,38 @@ class Estimator:
         )
         return ModeSwitch(record, redo, redo_likelihood, observation), True
 
-    def _rules_out(self, bounded: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray, at_estimate: float,
+    def _rules_out(self, free: Callable[[np.ndarray], np.ndarray], likelihood: Likelihood, T_ee_object: np.ndarray,
                    same: bool, index: int) -> bool:
         """Whether a mode check at frame ``index`` that found no rival rules out the one standing
         (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of its own)
         around that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now is (its
         ``T_estimate_rival``) and spread as the motion model under contact spreads a particle over
-        the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)), finds on the
-        check's belief-free terms ``bounded`` no pose still beyond the rival distances within
-        ``search.rival_margin`` nats of the estimate's ``at_estimate``. The check's own search of
-        the prior may end in a third, lower pose without having looked at the rival's narrow
-        basin, and the part may have slipped since: on simulated conn1 grasp 1053 the mode check
-        at contact onset (frame 16) found a pose 3.07 mm away 15 nats ahead (the truth); at frame
-        19 its search ended 3 nats below the estimate, the carried pose (0.46 mm from the truth)
-        scored 45 nats below, and the truth 15 nats above, which a search from the carried pose
-        reaches (0.2 mm / 0.5 deg wide, 3 rounds: 2.8 nats above the estimate; 1 mm / 3 deg: 30
-        below). A rival without a pose is ruled out as the rival check rules one out, by a search
-        that ends in the estimate's own mode (``same``)."""
+        the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)), finds no pose still
+        beyond the rival distances within ``search.rival_margin`` nats of the estimate. Scored on
+        the frame's ``likelihood``, as the rival check scores, except a held-back switch
+        (``RivalMode.held``): the belief-free terms ``free`` put it well ahead, and only they can
+        rule it out, since the frame's camera masks are the belief's choice. On simulated conn1
+        grasp 1053 (ends 3.06 mm off) the mode check at contact onset (frame 16) found a pose 3.07
+        mm away 15 nats ahead (the truth); at frame 19 its own search of the prior ended 3 nats
+        below the estimate, the carried pose (0.46 mm from the truth) scored 45 nats below, the
+        truth 15 above, and this search 10.7 above; the rival check's global search on the
+        frame's likelihood had ruled it out. A rival without a pose is ruled out as the rival
+        check rules one out, by a search that ends in the estimate's own mode (``same``)."""
         rival = self.rival
         if rival is None or rival.T_estimate_rival is None:
             return same
         s, f = self.cfg.search, self.cfg.filter
+        terms = free if rival.held else self.prior.bounded(likelihood)
         carried = T_ee_object @ rival.T_estimate_rival
         start = ParticleSet(np.repeat(carried[None], f.num_particles, axis=0), np.zeros(f.num_particles))
         rng = np.random.default_rng([f.seed, index, _MODE_STREAM, _RIVAL_STREAM])
         spread = np.sqrt(max(1, index - rival.frame))
         t0 = time.perf_counter()
         sigma_t, sigma_r = spread * f.sigma_high_translation_m, spread * np.radians(f.sigma_high_rotation_deg)
-        poses, ll = local_search(start, bounded, rng, sigma_t, sigma_r, **{**self.search, "rounds": s.mode_rounds})
+        poses, ll = local_search(start, terms, rng, sigma_t, sigma_r, **{**self.search, "rounds": s.mode_rounds})
         self._search_s += time.perf_counter() - t0
         apart = ~self._distances(poses, T_ee_object)[2] & np.isfinite(ll)
+        at_estimate = float(terms(T_ee_object[None])[0])
         return not apart.any() or at_estimate - float(np.max(ll[apart])) > s.rival_margin
 
     def _earlier_likelihoods(self) -> list[Callable[[np.ndarray], np.ndarray]]:

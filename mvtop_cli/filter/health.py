@@ -266,13 +266,16 @@ class RivalMode:
     of the grasp prior lies ``translation_mm`` / ``rotation_deg`` from the estimate (modulo the
     part's symmetries) and scores ``nats_below`` under it (negative: above it) at ``frame``.
     ``T_estimate_rival`` (4, 4), when known, is that pose in the estimate's object frame, so a
-    later check can score the same hypothesis where the estimate has moved to."""
+    later check can score the same hypothesis where the estimate has moved to. ``held``: the
+    mode check's belief-free evidence put it ahead of the estimate by more than
+    ``search.mode_margin`` and only the earlier frames held the switch back (``mode_held``)."""
 
     frame: int
     translation_mm: float
     rotation_deg: float
     nats_below: float
     T_estimate_rival: np.ndarray | None = field(default=None, compare=False, repr=False)
+    held: bool = False
 
     def warning(self, scored: str = "") -> dict:
         """The frame's ``rival_mode`` warning record; ``scored`` opens its sentence with how the

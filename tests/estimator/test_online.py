@@ -209,18 +209,20 @@ def test_the_checks_run_at_each_contact_onset_when_set(monkeypatch, at_contact, 
     assert seen == checked
 
 
-def test_a_mode_check_rules_out_the_standing_rival_by_searching_where_it_now_is():
+def test_a_mode_check_rules_out_the_standing_rival_by_searching_where_it_now_is(monkeypatch):
     """A mode check that finds no rival searches around the standing one, carried along with the
     estimate (``RivalMode.T_estimate_rival``) and spread by the motion noise of the frames since:
     when the best pose there that is still a rival (1 mm / 3 deg from the estimate) scores more
     than ``search.rival_margin`` below the estimate, it is ruled out; within the margin it stands,
-    whatever the check's own search found. Poses near the estimate do not count. A rival without
-    a pose goes only when the search ends in the estimate's own mode."""
+    whatever the check's own search found. Poses near the estimate do not count. A held-back switch
+    is scored on the check's belief-free terms, any other rival on the frame's likelihood. A rival
+    without a pose goes only when the search ends in the estimate's own mode."""
     from mvtop_cli.filter.health import RivalMode
     from mvtop_cli.geometry import se3
 
     cfg = load_config(ROOT / "configs" / "conn2.yaml")
     estimator = Estimator.from_config(cfg)
+    monkeypatch.setattr(estimator.prior, "within", lambda T: np.ones(len(T), dtype=bool))
     margin = cfg.search.rival_margin
     offset = se3.make_pose(np.eye(3), [0.003, 0.0, 0.0])  # the rival: 3 mm along the estimate's x
     T_estimate = se3.make_pose(np.eye(3), [0.01, -0.02, 0.03])  # where the estimate has moved to
@@ -229,18 +231,24 @@ def test_a_mode_check_rules_out_the_standing_rival_by_searching_where_it_now_is(
     def basin(height: float):
         """Log-likelihood: ``height`` at the rival's peak, falling 5 nats per mm away from it, and
         the estimate's own mode (0 nats), a narrow one."""
-        def bounded(T):
+        def log_likelihood(T):
             near_rival = height - 5.0 * 1e3 * np.linalg.norm(T[:, :3, 3] - peak[:3, 3], axis=1)
             near_estimate = -50.0 * 1e3 * np.linalg.norm(T[:, :3, 3] - T_estimate[:3, 3], axis=1)
             return np.maximum(near_rival, near_estimate)
-        return bounded
+        return log_likelihood
 
-    estimator.rival = RivalMode(9, 3.0, 0.0, 0.5, offset)
-    for same in (False, True):
-        # the carried pose alone scores 2.5 nats below the peak, beyond the margin: the search finds the peak
-        assert estimator._rules_out(basin(-margin + 1.5), T_estimate, 0.0, same, 19) is False
-        assert estimator._rules_out(basin(-margin - 1.0), T_estimate, 0.0, same, 19) is True
+    ahead, behind = basin(10.0), basin(-margin - 1.0)
+    for held in (True, False):
+        estimator.rival = RivalMode(9, 3.0, 0.0, 0.5, offset, held=held)
+        # scored where it is, the carried pose alone is 2.5 nats below the peak, beyond the margin:
+        # the search finds the peak
+        for same in (False, True):
+            stands = basin(-margin + 1.5)
+            free, frame = (stands, behind) if held else (behind, stands)
+            assert estimator._rules_out(free, frame, T_estimate, same, 19) is False
+            free, frame = (behind, ahead) if held else (ahead, behind)
+            assert estimator._rules_out(free, frame, T_estimate, same, 19) is True
     estimator.rival = RivalMode(9, 3.0, 0.0, 0.5)
-    assert estimator._rules_out(basin(0.0), T_estimate, 0.0, False, 19) is False
-    assert estimator._rules_out(basin(0.0), T_estimate, 0.0, True, 19) is True
+    assert estimator._rules_out(ahead, ahead, T_estimate, False, 19) is False
+    assert estimator._rules_out(ahead, ahead, T_estimate, True, 19) is True
     assert RivalMode(9, 3.0, 0.0, 0.5, offset) == RivalMode(9, 3.0, 0.0, 0.5)  # the pose is not compared
