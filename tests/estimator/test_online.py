@@ -149,6 +149,18 @@ def _conn2_steps(cfg, frames: int) -> list[FrameEstimate]:
         return [estimator.step(frame) for frame, _ in zip(reader, range(frames))]
 
 
+def _record_rival_checks(monkeypatch) -> list[int]:
+    """The frames the rival check runs on, from now on; each finds nothing and rules nothing out."""
+    seen: list[int] = []
+
+    def record(self, index, likelihood, T):
+        seen.append(index)
+        return None, False
+
+    monkeypatch.setattr(Estimator, "_rival_check", record)
+    return seen
+
+
 @pytest.mark.parametrize("beside", [False, True])
 def test_where_the_mode_check_searches_it_judges_rivals(monkeypatch, beside):
     """With touch and camera proposals the mode check, on belief-free camera evidence, takes the
@@ -164,13 +176,7 @@ def test_where_the_mode_check_searches_it_judges_rivals(monkeypatch, beside):
     script = iter([(ModeSwitch(rival.warning("scored so, "), rival=rival), False), (None, False), (None, True),
                    (None, None)])
     monkeypatch.setattr(Estimator, "_mode_check", lambda self, frame, result, likelihood, contact: next(script))
-    checked = []
-
-    def rival_check(self, index, likelihood, T):
-        checked.append(index)
-        return None, False
-
-    monkeypatch.setattr(Estimator, "_rival_check", rival_check)
+    checked = _record_rival_checks(monkeypatch)
     cfg = load_config(ROOT / "configs" / "conn2.yaml")
     cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40),
                   search=replace(cfg.search, rival_every=2, rival_beside_mode_check=beside))
@@ -190,13 +196,7 @@ def test_the_checks_run_at_each_contact_onset_when_set(monkeypatch, at_contact, 
     """``search.check_at_contact`` (on by default): the rival (and mode) checks also run on the first frame of
     each contact, a frame in contact after one without (a stalled descent in closed loop),
     not on the frames that stay in contact nor on the first frame."""
-    seen = []
-
-    def record(self, index, likelihood, T):
-        seen.append(index)
-        return None, False
-
-    monkeypatch.setattr(Estimator, "_rival_check", record)
+    seen = _record_rival_checks(monkeypatch)
     cfg = load_config(ROOT / "configs" / "conn2.yaml")
     cfg = replace(cfg, filter=replace(cfg.filter, num_particles=40),
                   search=replace(cfg.search, rival_every=0, mode_check=False, check_at_contact=at_contact))
