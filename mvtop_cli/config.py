@@ -372,10 +372,11 @@ class SearchConfig:
                "own masks agree with it: the frame is redone from the searched poses (flag mode_switch); when it "
                "scores from rival_margin below the estimate to mode_margin above it, it is a rival (flag rival_mode)"})
     rival_beside_mode_check: bool = field(default=False, metadata={
-        "doc": "also run the rival check on the frames the mode check runs on; off (default): there the mode check "
-               "alone judges rivals, on belief-free camera evidence: its rival stands until a later mode check finds "
-               "the estimate's own mode or switches (the rival check's camera masks are chosen by the belief, which "
-               "then rules out rivals the belief-free evidence still sees; about a third of a run's poses)"})
+        "doc": "also run the rival check on the frames the mode check searches; off (default): there the mode check "
+               "alone judges rivals: a standing one is searched for where it now is and ruled out when nothing there "
+               "comes within rival_margin of the estimate, on the frame's likelihood, or for a held-back switch on "
+               "the belief-free terms (README: Rival modes; the rival check's search is about a third of a run's "
+               "poses)"})
     mode_margin: float = field(default=5.0, metadata=_rng(
         0.0, 1e6, doc="nats by which the mode check's best pose, and then the frame redone from it, must beat the "
                       "estimate to replace it (the other searches use recheck_margin)"))

@@ -24,7 +24,7 @@ every pose choosing its own camera masks among the belief-free proposals
 belief in a wrong mode explains them best; when a far pose beats the estimate by
 ``search.mode_margin`` on equal terms, the frame is redone from the searched poses, with masks
 they choose, and a far pose it cannot tell from the estimate stands as a rival until a later
-mode check finds the estimate's own mode. In free air the grasp holds, so the
+mode check, searching around it, rules it out (``_rules_out``). In free air the grasp holds, so the
 switch must also clear the margin over the frames since the last contact, scored the same way
 (``search.mode_history_frames``): one frame whose proposals take in something beside the part
 cannot move a belief the frames before it agree on.
@@ -253,7 +253,7 @@ class Estimator:
         suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
         if suspect:
             flags.append("suspect_estimate")
-        # where the mode check searched, it judges rivals on belief-free evidence (search.rival_beside_mode_check)
+        # where the mode check searched, it alone judges rivals (search.rival_beside_mode_check)
         judged = mode_ruled_out is not None and not self.cfg.search.rival_beside_mode_check
         if due and evidence is not None and not judged:
             rival, ruled_out = self._rival_check(frame.index, likelihood, result.estimate)
