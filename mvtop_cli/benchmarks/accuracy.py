@@ -85,7 +85,7 @@ class AccuracyOptions:
 
 RESULTS_FILE = "results.jsonl.gz"
 # what a compact record keeps of a run's result.json: all the tables and plots use
-_RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "final", "benchmark")
+_RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "final", "before_contact", "benchmark")
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
@@ -366,13 +366,20 @@ def format_table(summary: dict) -> str:
             pe, rot = a["pose_error_mm"], a["rotation_error_deg"]
             cells.append(f"{pe['median']:.2f} / {pe['p95']:.2f} mm; {rot['median']:.2f} / {rot['p95']:.2f} deg")
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
-    lines += ["", "## Insertion success rate (final error within the clearance), %", "",
-              "| method | " + " | ".join(objs) + " | avg |", "|---|" + "---|" * (len(objs) + 1)]
-    for method, per in summary["table"].items():
-        rates = [100 * per[o]["success_rate"] if o in per else None for o in objs]
-        got = [r for r in rates if r is not None]
-        cells = ["-" if r is None else f"{r:.0f}" for r in rates]
-        lines.append(f"| {method} | " + " | ".join(cells) + f" | {sum(got) / len(got):.0f} |" if got else " | - |")
+
+    def rate_table(title: str, key: str) -> None:
+        lines.extend(["", f"## {title}, %", "", "| method | " + " | ".join(objs) + " | avg |",
+                      "|---|" + "---|" * (len(objs) + 1)])
+        for method, per in summary["table"].items():
+            rates = [None if per.get(o, {}).get(key) is None else 100 * per[o][key] for o in objs]
+            got = [r for r in rates if r is not None]
+            avg = f"{sum(got) / len(got):.0f}" if got else "-"
+            lines.append(f"| {method} | " + " | ".join("-" if r is None else f"{r:.0f}" for r in rates) + f" | {avg} |")
+
+    rate_table("Insertion success rate (final error within the clearance)", "success_rate")
+    if any(a.get("before_contact_runs") for per in summary["table"].values() for a in per.values()):
+        rate_table("Within the clearance just before contact (the last frame before the log first reports it)",
+                   "before_contact_success_rate")
     if any("seconds" in a for per in summary["table"].values() for a in per.values()):
         lines += ["", "## Time per run, median wall / CPU [s] (estimate + eval; CHSEL: points + registration)", "",
                   "| method | " + " | ".join(objs) + " |", "|---|" + "---|" * len(objs)]

@@ -471,6 +471,16 @@ class FrameReader:
         self.load()
         return self._gt_at(int(t_ns))
 
+    def contact_at(self, t_ns: int) -> bool | None:
+        """The log's contact state at ``t_ns`` as the frames read it (the contact topic's latest
+        message, or the force with hysteresis); None without a contact signal or before its
+        first message."""
+        self.load()
+        if not (self._has_contact or self._has_wrench):
+            return None
+        v = self._contact.latest(int(t_ns))
+        return None if v is None else bool(v)
+
     @property
     def ground_truth_frame(self) -> str | None:
         """``header.frame_id`` of the ground-truth messages (None without any)."""
@@ -642,14 +652,14 @@ class FrameReader:
         if not cameras and not tactile:
             self.skipped.append((stamp, "no sensor of the frame is usable (TF or recorded mask missing)"))
             return None
-        contact = self._contact.latest(stamp) if (self._has_contact or self._has_wrench) else None
+        contact = self.contact_at(stamp)
         return Frame(
             index=index,
             stamp_ns=stamp,
             T_world_ee=T_world_ee,
             cameras=cameras,
             tactile=tactile,
-            contact=None if contact is None else bool(contact),
+            contact=contact,
             finger_opening_m=self._finger.interpolated(stamp) if self._has_joints else None,
             T_world_object_gt=self._gt_at(stamp),
         )

@@ -225,7 +225,9 @@ def ground_truth_from_log(log_path: Path, config: Config, stamps_ns: np.ndarray)
     are converted through the log's TF at each stamp, as ``estimate`` does (NaN where TF does
     not cover it). Also ``{"frame": the messages' frame, "cameras": {name: (K (N, 3, 3),
     T_world_camera (N, 4, 4))}}``, the calibrations and camera poses MSPD needs (empty when
-    the log has no TF or camera topics). LogError if the log has no ground truth."""
+    the log has no TF or camera topics), and "contact": the log's contact state at each stamp
+    (a list of bool or None; None without TF and sensor topics). LogError if the log has no
+    ground truth."""
     from ..io import ros2_msgs as rm
     from ..io.frames import header_stamp_ns
     from ..io.mcap_reader import McapLog
@@ -281,13 +283,14 @@ def ground_truth_from_log(log_path: Path, config: Config, stamps_ns: np.ndarray)
                 if T is not None:
                     out[i] = T
         cameras = _camera_poses(reader, config, stamps_ns) if reader is not None else {}
-    return out, {"frame": frame, "cameras": cameras}
+        contact = None if reader is None else [reader.contact_at(int(s)) for s in stamps_ns]
+    return out, {"frame": frame, "cameras": cameras, "contact": contact}
 
 
 def _tf_reader(log, config: Config):
-    """A FrameReader over the log's TF, ground truth and calibrations (every configured
-    sensor whose image and CameraInfo topics hold messages), or None when the log has no
-    TF or no such sensor."""
+    """A FrameReader over the log's TF, contact signal, ground truth and calibrations (every
+    configured sensor whose image and CameraInfo topics hold messages, whichever modalities
+    the config enables), or None when the log has no TF or no such sensor."""
     from dataclasses import replace
 
     from ..config import MODALITIES
@@ -305,7 +308,7 @@ def _tf_reader(log, config: Config):
     sensors = [s for s in every if has(s.image_topic) and has(s.info_topic)]
     if not sensors:
         return None
-    return FrameReader(log, sensors, log_topics(config))
+    return FrameReader(log, sensors, log_topics(replace(config, modalities=MODALITIES)))
 
 
 def _camera_poses(reader, config: Config, stamps_ns: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -556,6 +559,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
     model = object_model(config)
     T_gt, gt_info = _ground_truth(track, log, gt_file, config)
     mspd = mspd_per_camera(model, track.T_world_object, T_gt, gt_info.pop("_cameras", {}))
+    contact = gt_info.pop("_contact", None)
     n = len(track.stamps_ns)
     idx = np.flatnonzero(~np.isnan(T_gt).any(axis=(1, 2)))
     T_world_ee = track.T_world_ee
@@ -595,6 +599,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "T_world_object_estimate": _pose_dict(track.T_world_object[-1]),
         "T_world_object_truth": _pose_dict(T_gt[-1]),
     }
+    before = before_contact(contact, track.frames, idx, per_frame)
     frames_block: dict[str, Any] = {
         "count": n,
         "with_truth": int(len(idx)),
@@ -620,6 +625,7 @@ def evaluate(track_dir: Path, log: Path | None, gt_file: Path | None, out_dir: P
         "ground_truth": gt_info,
         "estimate": {k: track.summary.get(k) for k in summary_keys},
         "final": final,
+        "before_contact": before,
         "frames": frames_block,
         "per_frame": per_frame,
         "files": {"bop_csv": bop_file, "markdown": "report.md", "html": "report.html"},
@@ -649,7 +655,27 @@ def _ground_truth(track: Track, log: Path | None, gt_file: Path | None, config: 
             "expected the log the track was estimated from"
         )
     return T_gt, {"source": "log", "log": str(log), "topic": topic, "frame": extra["frame"], "frames": "all",
-                  "interpolated": True, "_cameras": extra["cameras"]}
+                  "interpolated": True, "_cameras": extra["cameras"], "_contact": extra["contact"]}
+
+
+BEFORE_CONTACT_KEYS = ("frame", "insertion_error_mm", "translation_error_mm", "rotation_error_deg", "insertable")
+
+
+def before_contact(contact: list[bool | None] | None, frames: np.ndarray, idx: np.ndarray,
+                   per_frame: list[dict]) -> dict | None:
+    """The errors at the last frame with ground truth before the log first reports contact
+    (``contact`` and ``frames`` per track row; ``per_frame[j]`` scores row ``idx[j]``), with
+    ``contact_frame`` that first contact frame: how well the part was held just before the
+    receptacle acts on it.
+    None when the log has no contact signal, never reports contact, or from its first frame."""
+    if not contact:
+        return None
+    onset = next((i for i, c in enumerate(contact) if c), None)
+    rows = [j for j, i in enumerate(idx) if onset is not None and i < onset]
+    if not rows:
+        return None
+    row = per_frame[rows[-1]]
+    return {**{k: row[k] for k in BEFORE_CONTACT_KEYS}, "contact_frame": int(frames[onset])}
 
 
 def _mm(value_m: float | None) -> float | None:
@@ -702,8 +728,9 @@ def _json_safe(x: Any) -> Any:
 
 def aggregate(reports: list[dict]) -> dict:
     """Statistics of the final-frame metrics over runs: median, p95, mean and max of each
-    metric, the success rate (fraction of runs whose final pose is insertable), the mean
-    final NEES and the fraction within its 95 % bound; overall and per object."""
+    metric, the success rate (fraction of runs whose final pose is insertable), the same just
+    before contact (over the runs whose report has ``before_contact``), the mean final NEES and
+    the fraction within its 95 % bound; overall and per object."""
     if not reports:
         raise MvtopError("aggregate: no reports given (expected at least one report.json)")
     finals = []
@@ -714,13 +741,18 @@ def aggregate(reports: list[dict]) -> dict:
             raise MvtopError(
                 f"{where}: final.insertable / final.translation_error_mm missing (expected an mvtop eval report)"
             )
-        finals.append((r.get("object", "?"), f))
+        before = r.get("before_contact")
+        finals.append((r.get("object", "?"), f, before if isinstance(before, dict) else None))
 
-    def block(items: list[dict]) -> dict:
+    def block(runs: list[tuple]) -> dict:
+        items = [f for _o, f, _b in runs]
         out: dict[str, Any] = {"runs": len(items)}
         ok = [bool(f["insertable"]) for f in items if f["insertable"] is not None]  # None: no clearance configured
         out["successes"] = int(sum(ok)) if ok else None
         out["success_rate"] = float(np.mean(ok)) if ok else None
+        held = [bool(b["insertable"]) for _o, _f, b in runs if b is not None and b.get("insertable") is not None]
+        out["before_contact_runs"] = len(held)
+        out["before_contact_success_rate"] = float(np.mean(held)) if held else None
         for name in METRIC_NAMES:
             vals = [f[name] for f in items if f.get(name) is not None]
             out[name] = _stats(vals)
@@ -731,7 +763,7 @@ def aggregate(reports: list[dict]) -> dict:
         )
         return out
 
-    result = block([f for _o, f in finals])
-    objects = sorted({o for o, _f in finals})
-    result["by_object"] = {o: block([f for oo, f in finals if oo == o]) for o in objects}
+    result = block(finals)
+    objects = sorted({o for o, _f, _b in finals})
+    result["by_object"] = {o: block([x for x in finals if x[0] == o]) for o in objects}
     return result

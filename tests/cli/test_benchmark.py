@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from mvtop_cli.benchmarks.accuracy import read_results
+
 
 def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "mvtop_cli", *args], capture_output=True, text=True, timeout=900)
@@ -58,7 +60,7 @@ def test_benchmark_speed_set_needs_a_log():
 def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     out = tmp_path / "bench"
     args = ("benchmark", "accuracy", "--out", str(out), "--objects", "conn2", "--poses", "1", "--methods", "M-TOP",
-            "--frames", "6", "--particles", "60")
+            "--frames", "8", "--particles", "60")
     first = run(*args)
     assert first.returncode == 0, first.stderr
     result = out / "runs" / "conn2_1000_M-TOP" / "result.json"
@@ -68,6 +70,14 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert agg["runs"] == 1
     assert abs(agg["pose_error_mm"]["median"] - report["final"]["pose_error_mm"]) < 1e-9
     assert f"| M-TOP | {agg['pose_error_mm']['median']:.2f} /" in first.stdout
+    # the part touches the receptacle at frame 7: the frame before it is scored and kept in the results
+    before = report["before_contact"]
+    assert before["contact_frame"] == 7 and before["frame"] == 6
+    assert before["insertion_error_mm"] == report["per_frame"][6]["insertion_error_mm"]
+    assert agg["before_contact_runs"] == 1 and agg["before_contact_success_rate"] == float(before["insertable"])
+    rate = f"| M-TOP | {100 * float(before['insertable']):.0f} | {100 * float(before['insertable']):.0f} |"
+    assert rate in first.stdout.split("just before contact")[1]
+    assert read_results(out / "results.jsonl.gz")[0]["before_contact"] == before
     # each run keeps the warnings it raised, and the summary says how the suspect_estimate warning fell
     counts = json.loads((out / "runs" / "conn2_1000_M-TOP" / "summary.json").read_text())["warning_counts"]
     assert report["benchmark"]["warning_counts"] == counts

@@ -18,7 +18,7 @@ from mvtop_cli.config import load_config
 from mvtop_cli.errors import ConfigError, LogError, MvtopError, TrackError
 from mvtop_cli.eval.report import parse_bop_csv
 from mvtop_cli.geometry import se3
-from mvtop_cli.pipelines.evaluate import aggregate, evaluate, object_model, read_gt_file
+from mvtop_cli.pipelines.evaluate import aggregate, before_contact, evaluate, object_model, read_gt_file
 
 N = 8
 
@@ -188,6 +188,55 @@ def test_sample_log_ground_truth_with_a_known_offset(tmp_path):
     assert report["final"]["rotation_error_deg"] == pytest.approx(0.0, abs=1e-6)
 
 
+def test_before_contact_scores_the_last_frame_before_the_logs_first_contact(tmp_path):
+    """A track off by 0.1 mm until the log first reports contact and by 2 mm from then on: the
+    report's ``before_contact`` is the frame before that contact message, 0.1 mm off and
+    insertable, whatever modalities the track's config enables."""
+    from mvtop_cli.io.mcap_reader import McapLog
+
+    log = REPO / "sample_logs" / "conn1.mcap"
+    with McapLog(log) as reader:
+        msgs = list(reader.messages(GT_TOPIC))
+        contact = [(m.log_time_ns, bool(m.msg.data)) for m in reader.messages("/contact")]
+    stamps = np.array([m.log_time_ns for m in msgs], dtype=np.int64)
+    onset_ns = min(t for t, c in contact if c)
+    onset = int(np.searchsorted(stamps, onset_ns))  # the first frame at or after the contact message
+    assert 3 < onset < len(stamps) - 3  # the sample log approaches, then touches
+    T_gt = np.stack([se3.from_quat_xyzw(
+        np.array([m.msg.pose.orientation.x, m.msg.pose.orientation.y, m.msg.pose.orientation.z,
+                  m.msg.pose.orientation.w]),
+        np.array([m.msg.pose.position.x, m.msg.pose.position.y, m.msg.pose.position.z])) for m in msgs])
+    shift = np.where(np.arange(len(stamps)) < onset, 1e-4, 2e-3)
+    T_est = T_gt.copy()
+    T_est[:, 1, 3] += shift
+    T_ee = T_gt @ se3.invert(load_config(REPO / "configs" / "conn1.yaml").grasp_prior.pose.matrix())
+    track = write_track(tmp_path / "track", "conn1", stamps, T_est, T_ee)
+    cfg = load_config(REPO / "configs" / "conn1.yaml", {"modalities": ["vision"]})
+    report = evaluate(track, log, None, tmp_path / "r", config=cfg)
+    b = report["before_contact"]
+    assert b["contact_frame"] == onset and b["frame"] == onset - 1
+    assert b["translation_error_mm"] == pytest.approx(0.1, abs=1e-6) and b["insertable"] is True
+    assert report["final"]["translation_error_mm"] == pytest.approx(2.0, abs=1e-6)
+    assert json.loads((tmp_path / "r" / "report.json").read_text())["before_contact"] == b
+
+
+def test_before_contact_is_none_without_contact_or_before_any_frame(tmp_path, conn1):
+    stamps, T_gt, T_ee, log = conn1
+    frames, idx = np.arange(4), np.arange(4)
+    rows = [{"frame": i, "insertion_error_mm": 0.1 * i, "translation_error_mm": 0.1 * i, "rotation_error_deg": 0.0,
+             "insertable": i < 2} for i in range(4)]
+    assert before_contact(None, frames, idx, rows) is None
+    assert before_contact([False] * 4, frames, idx, rows) is None
+    assert before_contact([True, True, False, True], frames, idx, rows) is None  # in contact from the start
+    assert before_contact([None, False, True, True], frames, idx, rows)["frame"] == 1
+    # frames without truth are skipped: the last scored frame before the contact
+    assert before_contact([False, False, False, True], frames, np.array([0, 1, 3]), [rows[0], rows[1], rows[3]]) == {
+        **rows[1], "contact_frame": 3}
+    # a log with truth but no TF and sensors gives no contact state: no block
+    report = evaluate(write_track(tmp_path / "t", "conn1", stamps, T_gt, T_ee), log, None, tmp_path / "r")
+    assert report["before_contact"] is None
+
+
 def test_ground_truth_is_interpolated_between_messages(tmp_path):
     # Truth at 0, 100, 200 ... ms moving at constant velocity; track frames half-way between.
     n = 6
@@ -241,6 +290,15 @@ def test_aggregate_over_runs_hand_values():
     assert agg["nees"]["mean"] == pytest.approx(7.25) and agg["nees_within_bound_fraction"] == 0.75
     assert agg["by_object"]["a"]["success_rate"] == 1.0 and agg["by_object"]["b"]["success_rate"] == 0.5
     assert agg["by_object"]["b"]["translation_error_mm"]["median"] == 3.5
+    assert agg["before_contact_runs"] == 0 and agg["before_contact_success_rate"] is None
+    runs[0]["before_contact"] = {"insertable": False}
+    runs[2]["before_contact"] = {"insertable": True}
+    runs[3]["before_contact"] = None  # no contact in that run
+    agg = aggregate(runs)
+    assert agg["before_contact_runs"] == 2 and agg["before_contact_success_rate"] == 0.5
+    assert agg["by_object"]["a"]["before_contact_success_rate"] == 0.0
+    b = agg["by_object"]["b"]
+    assert b["before_contact_runs"] == 1 and b["before_contact_success_rate"] == 1.0
     with pytest.raises(MvtopError, match="no reports"):
         aggregate([])
     with pytest.raises(MvtopError, match="final.insertable"):
