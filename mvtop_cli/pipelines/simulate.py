@@ -55,6 +55,9 @@ SDF_RESOLUTION_M = 0.00025  # the config's default contact.sdf_resolution_m
 # the scene configs' masking.tactile_depth_tolerance_m [m]: the depth topics hold the exact
 # indentation (to INDENTATION_STEP_M), so a pose pressed 0.05 mm deeper than measured is ruled out
 DEPTH_TOLERANCE_M = 5e-5
+# the scene configs' edges.gain per built-in object: the camera contour term where the part's
+# outline stands clear of other edges in the simulated images (README: Camera contour term)
+CONTOUR_GAIN = {"plug": 3.0, "shaft_peg": 3.0}
 
 
 @dataclass(frozen=True)
@@ -421,7 +424,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     decide the image topics (compressed or raw), the gel distance [m] (unless
     ``gel_distance_m`` is given) and, for ``kinematics="joint-states"``, ``robot.urdf``
     (``URDF_FILE`` beside the config, see :func:`write_scene_config`). The simulated pads'
-    depth is exact, so the config sets ``masking.tactile_depth_tolerance_m`` (``DEPTH_TOLERANCE_M``)."""
+    depth is exact, so the config sets ``masking.tactile_depth_tolerance_m`` (``DEPTH_TOLERANCE_M``);
+    for the objects of ``CONTOUR_GAIN`` it turns the camera contour term on (``edges.gain``)."""
     options = options or SimulateOptions()
     if gel_distance_m is None:
         gel_distance_m = options.gel_distance_m
@@ -479,6 +483,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
         cfg["masking"]["camera"] = {"backend": "topic"}
     if options.kinematics == "joint-states":
         cfg["robot"] = {"urdf": URDF_FILE}
+    if object_name in CONTOUR_GAIN:
+        cfg["edges"] = {"gain": CONTOUR_GAIN[object_name]}
     if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance
         cfg["contact"] = {"sdf_resolution_m": round(spec.clearance_m / 2.0, 9)}
     return cfg
