@@ -10,8 +10,9 @@ scaled down after five frames and the run ends in the wrong mode.
 
 The pads' measured depth (``masking.tactile_depth_tolerance_m``, set in the simulator's scene
 configs) rules that mode out by itself: with it the first frames stay within 2.6 deg (1.5-2 mm
-off along the peg, narrowing over the frames). The scene is estimated without it, so that the
-checks have a wrong mode to leave.
+off along the peg, narrowing over the frames). So does the camera contour term (``edges.gain``,
+on in the shaft peg's scene config: the first frame 0.4 deg off). The scene is estimated
+without either, so that the checks have a wrong mode to leave.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ def scene(tmp_path_factory):
     options = SimulateOptions(episode=EpisodeOptions(frames=30))
     simulate("shaft_peg", SEED, d / "log.mcap", options)
     cfg = load_config(write_scene_config("shaft_peg", d / "config.yaml", options))
-    return d / "log.mcap", replace(cfg, filter=replace(cfg.filter, seed=SEED),
+    assert cfg.edges.gain > 0  # the scene config's contour term, left out below
+    return d / "log.mcap", replace(cfg, filter=replace(cfg.filter, seed=SEED), edges=replace(cfg.edges, gain=0.0),
                                    masking=replace(cfg.masking, grabcut_prompt="prior", tactile_depth_tolerance_m=None))
 
 
@@ -66,6 +68,12 @@ def test_the_gels_depth_rules_the_wrong_mode_out_by_itself(scene):
     track = _track(log_path, replace(cfg, masking=replace(cfg.masking, tactile_depth_tolerance_m=5e-5)), 4)
     assert all(dw < 3.0 for _, dw, _, _ in track), track  # the wrong mode: 12-19 deg off
     assert all(left > 0.9 for _, _, _, left in track[1:]), track
+
+
+def test_the_contour_term_keeps_the_first_frames_out_of_the_wrong_mode(scene):
+    log_path, cfg = scene
+    track = _track(log_path, replace(cfg, edges=replace(cfg.edges, gain=3.0)), 2)
+    assert all(dw < 3.0 for _, dw, _, _ in track), track  # the wrong mode: 12-19 deg off
 
 
 def test_an_outvoted_pad_draws_the_estimate_out_of_a_wrong_mode(scene):
