@@ -668,13 +668,11 @@ def before_contact(contact: list[bool | None] | None, frames: np.ndarray, idx: n
     ``contact_frame`` that first contact frame: how well the part was held just before the
     receptacle acts on it.
     None when the log has no contact signal, never reports contact, or from its first frame."""
-    if not contact:
+    onset = next((i for i, c in enumerate(contact or []) if c), None)
+    scored = np.flatnonzero(idx < onset) if onset is not None else []
+    if not len(scored):
         return None
-    onset = next((i for i, c in enumerate(contact) if c), None)
-    rows = [j for j, i in enumerate(idx) if onset is not None and i < onset]
-    if not rows:
-        return None
-    row = per_frame[rows[-1]]
+    row = per_frame[scored[-1]]
     return {**{k: row[k] for k in BEFORE_CONTACT_KEYS}, "contact_frame": int(frames[onset])}
 
 
