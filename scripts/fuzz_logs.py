@@ -23,16 +23,17 @@ Each command must end in one of these outcomes:
   error    exit 2 with one line ``mvtop: error: ...`` naming the log, and no output file
 
 Anything else is a failure: ``crash`` (any other exception: a traceback), ``hang`` (over
-``--timeout`` seconds), ``died`` (the process was killed, e.g. by a signal), ``unclear``
-(exit 2 without that one line), ``partial`` (a failed run left an output file),
-``noisy`` (a successful run printed something other than ``mvtop: warning:`` lines and the
-plain progress lines a run longer than a minute prints off a terminal, ``PROGRESS_LINE``).
-The script prints the counts per command and outcome, the time taken and the most
-frequent kinds of error; for each distinct failure it keeps the smallest input, simplifies
-it while it still fails (``Spec.smaller``), writes it to ``--keep`` with its description
-and traceback, and exits 1. The commands run in a worker process (address space capped at
-6 GB) that is killed and restarted when an input exceeds the time limit. See
-docs/robustness.md; tests/io/test_fuzz_logs.py runs a small deterministic part in CI.
+``--timeout`` seconds of CPU time, or five times that of wall time), ``died`` (the process
+was killed, e.g. by a signal), ``unclear`` (exit 2 without that one line), ``partial`` (a
+failed run left an output file), ``noisy`` (a successful run printed something other than
+``mvtop: warning:`` lines and the plain progress lines a run longer than a minute prints off
+a terminal, ``PROGRESS_LINE``). The script prints the counts per command and outcome, the
+time taken and the most frequent kinds of error; for each distinct failure it keeps the
+smallest input, simplifies it while it still fails (``Spec.smaller``), writes it to
+``--keep`` with its description and traceback, and exits 1. The commands run in a worker
+process (address space capped at 6 GB) that is killed and restarted when an input exceeds
+the time limit. See docs/robustness.md; tests/io/test_fuzz_logs.py runs a small
+deterministic part in CI.
 """
 
 from __future__ import annotations
@@ -950,8 +951,12 @@ def _run_in_process(main, argv: list[str]) -> dict:
                 "seconds": time.perf_counter() - t, "cpu_seconds": time.process_time() - c}
 
 
+WALL_FACTOR = 5  # a job is a hang after this many times its CPU-time limit in wall time
+
+
 class Worker:
-    """A ``mvtop`` worker process; ``run`` kills and restarts it when a job exceeds ``timeout`` s."""
+    """A ``mvtop`` worker process; ``run`` kills and restarts it when a job exceeds ``timeout`` s of
+    CPU time (see ``_answered``)."""
 
     def __init__(self, timeout: float, memory_gb: float = 6.0, env: dict[str, str] | None = None):
         self.timeout = timeout
@@ -983,14 +988,36 @@ class Worker:
             self.proc.wait()
             self.proc = None
 
+    def _cpu_seconds(self) -> float | None:
+        """CPU time [s] the worker process has used (its threads too), or None off Linux."""
+        try:
+            fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return None
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+
+    def _answered(self, limit: float) -> bool:
+        """Whether the worker answers before it has used ``limit`` s of CPU time for this job, or
+        ``WALL_FACTOR * limit`` s of wall time (a deadlock uses no CPU). CPU time, not wall time,
+        so that a machine busy with other work does not turn a slow input into a ``hang``."""
+        cpu0, t0 = self._cpu_seconds(), time.monotonic()
+        while True:
+            wall = time.monotonic() - t0
+            cpu = self._cpu_seconds()
+            used = wall if cpu is None or cpu0 is None else cpu - cpu0
+            if used >= limit or wall >= WALL_FACTOR * limit:
+                return False
+            step = min(limit - used, WALL_FACTOR * limit - wall, 0.5)
+            if select.select([self.proc.stdout], [], [], max(step, 0.0))[0]:
+                return True
+
     def run(self, argv: list[str], timeout: float | None = None) -> dict:
         if self.proc is None:
             self._start()
         assert self.proc is not None
         self.proc.stdin.write((json.dumps({"argv": argv}) + "\n").encode())
         self.proc.stdin.flush()
-        ready, _, _ = select.select([self.proc.stdout], [], [], self.timeout if timeout is None else timeout)
-        if not ready:
+        if not self._answered(self.timeout if timeout is None else timeout):
             self._kill()
             return {"code": None, "hang": True, "stdout": "", "stderr": "", "traceback": None}
         line = self.proc.stdout.readline()
@@ -1101,7 +1128,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--count", type=int, default=1000, help="number of mutated inputs (default 1000)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the input generator (default 0)")
-    ap.add_argument("--timeout", type=float, default=30.0, help="time limit per command and input [s] (default 30)")
+    ap.add_argument("--timeout", type=float, default=30.0,
+                    help="CPU-time limit per command and input [s] (default 30; 5x in wall time)")
     ap.add_argument("--keep", type=Path, default=Path("fuzz_failures"),
                     help="folder for failing inputs (default ./fuzz_failures)")
     ap.add_argument("--no-shrink", dest="shrink", action="store_false",

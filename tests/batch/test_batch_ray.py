@@ -6,6 +6,7 @@ every log's outputs equal the serial single-log run. Ray is the optional extra `
 from __future__ import annotations
 
 import csv
+import functools
 import os
 from pathlib import Path
 
@@ -28,12 +29,17 @@ def local_ray():
     ray.shutdown()
 
 
-def test_no_running_cluster_is_one_line(monkeypatch):
-    """Runs before the module's local instance starts: a Ray instance shut down a moment ago
-    can still be found by ``auto`` while its processes exit."""
+def test_no_running_cluster_is_one_line(monkeypatch, tmp_path):
+    """``auto`` on a machine where no Ray instance runs. Ray's ``auto`` joins any instance it
+    finds on the machine (its processes, or the address file in its temp folder), so the test
+    hides those of other programs (another test run) and of this module's fixture, shut down a
+    moment ago while its processes exit: an empty temp folder and no process found."""
     if ray.is_initialized():
         ray.shutdown()
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setenv("RAY_TMPDIR", str(tmp_path))
+    no_process = functools.lru_cache(lambda: [])  # Ray clears the cache of the one it replaces
+    monkeypatch.setattr(ray._private.services, "find_gcs_addresses", no_process)
     expected = r"^--ray auto: cannot connect to Ray \(Could not find any running Ray instance"
     with pytest.raises(MvtopError, match=expected):
         list(RayEngine("auto").run(print, [("x",)]))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -149,8 +150,10 @@ def test_estimate_writes_the_track_folder(tmp_path):
                "--max-frames", "3", "--modalities", "vision,tactile")
     assert proc.returncode == 0, proc.stderr
     assert "3 frames" in proc.stdout and "error vs ground truth" in proc.stdout
-    # a clean run says nothing on stderr: no library warnings (numba's about an old TBB)
-    assert proc.stderr == "", proc.stderr
+    # a clean run says nothing on stderr: no library warnings (numba's about an old TBB); only
+    # the plain progress lines a run longer than a minute prints off a terminal (a slow machine)
+    progress = re.compile(r"^estimate [^:]+: \d+/\d+ \(\d+ %\), .+ elapsed(, about .+ left)?$")
+    assert [ln for ln in proc.stderr.splitlines() if not progress.match(ln)] == [], proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["config.resolved.yaml", "summary.json", "track.csv", "track.mcap"]
     resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
     assert resolved["modalities"] == ["vision", "tactile"] and resolved["filter"]["num_particles"] == 100

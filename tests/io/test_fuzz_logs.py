@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -97,6 +99,24 @@ def test_the_harness_reports_failures(env, tmp_path):
     with fuzz.Worker(timeout=0.001) as slow:
         r = slow.run(["inspect", str(env[1])])
     assert fuzz.classify("inspect", r, log, None)[0] == "hang"
+
+
+@pytest.mark.parametrize(("program", "answered"), [
+    ("import time; time.sleep(1.0); print('{}')", True),  # waits 1 s: under 5 x 0.4 s of wall time
+    ("while True: pass", False),  # spins: 0.4 s of CPU time is a hang
+    ("import time; time.sleep(60)", False),  # waits on nothing: a hang after 5 x 0.4 s of wall time
+])
+def test_the_time_limit_counts_cpu_time_and_caps_wall_time(program, answered):
+    """A worker that waits (a busy machine, a slow disk) is not hung until five times the limit;
+    one that spins is hung after the limit of CPU time, however slowly the machine gives it."""
+    worker = fuzz.Worker(timeout=0.4)
+    worker.proc = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE)
+    t0 = time.monotonic()
+    try:
+        assert worker._answered(worker.timeout) is answered
+        assert time.monotonic() - t0 < fuzz.WALL_FACTOR * worker.timeout + 1.0
+    finally:
+        worker._kill()
 
 
 @pytest.mark.parametrize("name", sorted(fuzz.MESSAGE_MUTATIONS))
