@@ -197,13 +197,16 @@ class Estimator:
         if first:
             self.particles = self.prior.sample(self.cfg.filter.num_particles, self.rng)
         ps = self.particles
-        contact = frame.contact if self.use_contact else None
-        due = self._check_due(frame.index, onset=bool(contact) and not first and not self.in_contact)
-        self.in_contact = bool(contact)
+        # the log's contact signal c_k moves the particles (Algorithm 3-4) in every method; it is
+        # evidence (eq. 8-9) only with the contact modality
+        contact = self._evidence_contact(frame)
+        due = self._check_due(frame.index, onset=bool(frame.contact) and not first and not self.in_contact)
+        self.in_contact = bool(frame.contact)
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
-        result = self._assimilate(ps, first, contact, bool(observation.sensors), likelihood)
+        result = self._assimilate(ps, first, bool(frame.contact), bool(observation.sensors) or bool(contact),
+                                  likelihood)
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
         switch, mode_ruled_out = self._mode_check(frame, result, likelihood, contact) if checked else (None, None)
@@ -241,7 +244,7 @@ class Estimator:
         evidence = self._evidence(likelihood, result.estimate, sensor_iou, bool(observation.sensors) or bool(contact))
 
         if not first:
-            jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(contact))
+            jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(frame.contact))
             if jump.jumped:
                 cause = ("the frame was redone in another mode" if "mode_switch" in flags
                          else "the belief was re-searched" if "re_searched" in flags else "")
@@ -310,7 +313,7 @@ class Estimator:
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
         self.rival = last.rival
-        self.in_contact = bool(last.contact) and self.use_contact
+        self.in_contact = bool(last.contact)
 
     def remember(self, frame: Frame) -> None:
         """Keep ``frame`` as one of the mode check's earlier frames (``search.mode_history_frames``,
@@ -321,6 +324,11 @@ class Estimator:
             self.history.append(frame)
         else:
             self.history.clear()
+
+    def _evidence_contact(self, frame: Frame) -> bool | None:
+        """The frame's contact state as evidence for the contact likelihood (eq. 8-9): the log's
+        signal with the contact modality, else None (no contact term)."""
+        return frame.contact if self.use_contact else None
 
     def _check_due(self, index: int, onset: bool) -> bool:
         """Whether frame ``index`` has the rival and mode checks: every ``search.rival_every``
@@ -351,17 +359,18 @@ class Estimator:
         return (spread.translation_rms_m < m.converged_translation_m
                 and spread.rotation_rms_rad < np.radians(m.converged_rotation_deg))
 
-    def _assimilate(self, ps: ParticleSet, first: bool, contact: bool | None, has_obs: bool,
+    def _assimilate(self, ps: ParticleSet, first: bool, in_contact: bool, has_evidence: bool,
                     likelihood: Likelihood) -> StepResult:
-        """The frame's filter update: a plain prediction when nothing was observed; else the
-        prediction (the first frame: a global search of the grasp prior) and the
-        observation (``ParticleFilter.assimilate``), then, with the refinement, the re-search
-        check (``_recheck``)."""
-        if not has_obs and not contact:
-            return self.pf.assimilate(self.pf.predict(ps, False), lambda T: np.zeros(len(T)), 0)
+        """The frame's filter update: a plain prediction when the frame holds no evidence
+        (no sensor observed, no contact term); else the prediction (the first frame: a global
+        search of the grasp prior) and the observation (``ParticleFilter.assimilate``), then,
+        with the refinement, the re-search check (``_recheck``). ``in_contact``: the log's
+        contact signal, for the motion model (Algorithm 4)."""
+        if not has_evidence:
+            return self.pf.assimilate(self.pf.predict(ps, in_contact), lambda T: np.zeros(len(T)), 0)
         bounded = self.prior.bounded(likelihood)
         iterations = self.cfg.filter.refine_iterations * (self.cfg.search.first_frame_iteration_factor if first else 1)
-        predicted = self._global_search(bounded) if first else self.pf.predict(ps, bool(contact))
+        predicted = self._global_search(bounded) if first else self.pf.predict(ps, in_contact)
         result = self.pf.assimilate(predicted, likelihood, iterations)
         return self._recheck(result, first, likelihood, bounded) if iterations > 0 else result
 
@@ -563,7 +572,7 @@ class Estimator:
             if not proposals:
                 continue
             observation = self.observations.observe(past, prior, False)
-            contact = past.contact if self.use_contact else None
+            contact = self._evidence_contact(past)
             likelihood = Likelihood(self.cfg, self.scene, past, observation, contact)
             out.append(self.prior.bounded(ProposalLikelihood(likelihood, proposals)))
         return out

@@ -51,12 +51,16 @@ def sensor_topics(cfg: Config) -> list[SensorTopics]:
 
 
 def log_topics(cfg: Config) -> LogTopics:
+    """The non-image topics the frames read. The contact signal (``topics.contact``, else the
+    force of ``topics.wrench``) is read whenever the log holds it, whatever the modalities: it
+    is the motion model's input c_k (Algorithm 3-4) in every method; the ``contact`` modality
+    adds the contact likelihood (eq. 8-9) and makes the signal required (``Config.required_topics``)."""
     t = cfg.topics
     return LogTopics(
-        tf=t.tf, tf_static=t.tf_static, contact=t.contact if "contact" in cfg.modalities else None,
+        tf=t.tf, tf_static=t.tf_static, contact=t.contact,
         joint_states=t.joint_states, ground_truth=t.ground_truth, world_frame=cfg.frames.world,
         ee_frame=cfg.frames.ee, sync_tolerance_ns=int(round(cfg.sync_tolerance_s * 1e9)),
-        wrench=t.wrench if "contact" in cfg.modalities else None,
+        wrench=t.wrench,
         contact_force_on_n=cfg.contact.force_on_n, contact_force_off_n=cfg.contact.force_off_n,
         urdf=None if cfg.robot.urdf is None else str(cfg.robot.urdf),
     )

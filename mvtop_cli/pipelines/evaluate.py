@@ -308,7 +308,7 @@ def _tf_reader(log, config: Config):
     sensors = [s for s in every if has(s.image_topic) and has(s.info_topic)]
     if not sensors:
         return None
-    return FrameReader(log, sensors, log_topics(replace(config, modalities=MODALITIES)))
+    return FrameReader(log, sensors, log_topics(config))
 
 
 def _camera_poses(reader, config: Config, stamps_ns: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
