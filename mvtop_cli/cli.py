@@ -392,7 +392,8 @@ def mesh_check_cmd(mesh: Path, receptacle: Path | None, units: str, leading_face
               help="Output folder: track.mcap, track.csv, summary.json, config.resolved.yaml (several logs: "
                    "one folder per log in it, and runs.csv).")
 @click.option("--modalities", metavar="LIST",
-              help="Comma-separated subset of vision,tactile,contact (default: the config's).")
+              help="Comma-separated subset of vision,tactile,contact (default: the config's); contact adds "
+                   "the contact likelihood, while the log's contact signal sets the motion noise in any case.")
 @particles_option(what="Number of particles")
 @seed_option()
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")

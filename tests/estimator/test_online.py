@@ -56,6 +56,31 @@ def test_moving_occluders_need_a_frame_pose():
         estimator.step(frame)
 
 
+
+def test_the_contact_signal_moves_the_particles_without_the_contact_modality():
+    """Vision only (M-VOP): the frames still carry the log's contact signal, and the motion
+    model follows it (Algorithm 3-4's c_k): a frame in contact spreads the belief's rotation by
+    the contact sigma, one out of contact by the free one (the cube config: 0.25 and 0.1 deg per
+    axis, a variance ratio of 6.25). With nothing observed the frame has no evidence at all: no
+    contact likelihood without the contact modality."""
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    cfg = replace(cfg, modalities=("vision",), filter=replace(cfg.filter, num_particles=400))
+    f = cfg.filter
+    expected = (f.sigma_high_rotation_deg / f.sigma_low_rotation_deg) ** 2
+    added = {}
+    with McapLog(ROOT / "sample_logs" / "cube.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        frames = [frame for frame, _ in zip(reader, range(30))]
+        assert [fr.contact for fr in frames[:2]] == [False, False] and any(fr.contact for fr in frames)
+        for contact in (False, True):
+            estimator = Estimator.from_config(cfg, frame_pose=lambda name, t: reader.tf.lookup("world", name, t))
+            estimator.step(frames[0])
+            before = np.trace(estimator.particles.spread(estimator.fold).covariance[3:, 3:])
+            estimator.step(replace(frames[1], cameras={}, contact=contact))
+            added[contact] = np.trace(estimator.particles.spread(estimator.fold).covariance[3:, 3:]) - before
+    assert added[False] > 0
+    assert added[True] / added[False] == pytest.approx(expected, rel=0.3)
+
 def _steps(name: str, modalities: tuple[str, ...], frames: int, suspect: float | None = 0.4,
            rival_every: int = 0) -> list[FrameEstimate]:
     """The first ``frames`` frames of sample ``name`` stepped online with ``modalities``, 120
