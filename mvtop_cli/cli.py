@@ -183,6 +183,21 @@ def _signal_name(signum: int) -> str:
     return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
 
 
+@contextlib.contextmanager
+def _stops_resumably(label: str, out_dir: Path, finished: str):
+    """A job of many runs (a batch, a benchmark) stopped by Ctrl-C or SIGTERM: its worker
+    processes are stopped (``batch.engine``), the runs it finished stay in ``out_dir`` (each
+    written whole), and one line says so; exit code 128 + the signal's number."""
+    try:
+        with _sigterm_interrupts():
+            yield
+    except KeyboardInterrupt as stop:
+        signum = int(getattr(stop, "signum", signal.SIGINT))
+        click.echo(f"mvtop: {label} interrupted ({_signal_name(signum)}); the {finished} it finished are kept in "
+                   f"{out_dir}: run the same command to go on", err=True)
+        sys.exit(128 + signum)
+
+
 def _check_output_path(out: Path, suffix: str | None = None) -> None:
     if suffix and out.suffix != suffix:
         raise MvtopError(f"{out}: expected an output file name ending in {suffix}")
@@ -518,7 +533,7 @@ def _estimate_many(logs: tuple[Path, ...], manifest: Path | None, config_path: P
     for cfg in sorted({j.config for j in jobs}):  # a bad config stops the batch before any work
         load_config(cfg)
     engine = make_engine(workers, ray_address)
-    with _sigterm_interrupts(), _batch_progress("estimate") as update:
+    with _stops_resumably("estimate", out_dir, "logs"), _batch_progress("estimate") as update:
         summary = run_batch(jobs, out_dir, engine, progress=update)
     click.echo(format_summary(summary))
     failed = [r for r in summary["records"] if r["status"] != "ok"]
@@ -882,7 +897,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
                               particles=particles, workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
                               ray=ray_address, scene=scene, settings=parse_settings(settings))
-    with _progress("benchmark accuracy") as update:
+    with _stops_resumably("benchmark accuracy", out_dir, "runs"), _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
     click.echo(f"wrote {out_dir}/summary.md and summary.html ({summary['seconds_this_run']:.0f} s in this run)")
@@ -928,7 +943,7 @@ def benchmark_insertion_cmd(out_dir: Path, objects: str | None, object_files: tu
                                         keep_logs=keep_logs, import_results=import_results,
                                         summary_only=summary_only, ray=ray_address, scene=scene,
                                         recorded_masks_px=recorded_masks_px, settings=parse_settings(settings))
-    with _progress("benchmark insertion") as update:
+    with _stops_resumably("benchmark insertion", out_dir, "runs"), _progress("benchmark insertion") as update:
         summary = run_insertion_benchmark(out_dir, options, progress=update)
     click.echo(format_table(summary))
     click.echo(f"wrote {out_dir}/summary.md ({summary['seconds_this_run']:.0f} s in this run)")

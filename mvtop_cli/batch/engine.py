@@ -20,6 +20,7 @@ import logging
 import multiprocessing
 import os
 import re
+import signal
 import socket
 import sys
 from dataclasses import dataclass
@@ -157,8 +158,14 @@ class LocalEngine:
                 recv.close()
 
 
+def _stop(signum: int, _frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def _child(send, fn: Callable, threads: int, args: tuple) -> None:
-    """A local worker process: run one job, send ("ok", value) or ("error", exception)."""
+    """A local worker process: run one job, send ("ok", value) or ("error", exception). SIGTERM
+    (the driver stopping) stops the job like Ctrl-C: it cleans up and the process exits."""
+    signal.signal(signal.SIGTERM, _stop)
     try:
         message = ("ok", call_with_threads(fn, threads, args))
     except Exception as err:  # the job's outcome
@@ -166,10 +173,16 @@ def _child(send, fn: Callable, threads: int, args: tuple) -> None:
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the job stops (leaving its checkpoint), quietly
         sys.exit(130)
     try:
-        send.send(message)
-    except Exception as err:  # an unpicklable value or exception
-        send.send(("error", MvtopError(f"{type(err).__name__}: {err}")))
-    send.close()
+        try:
+            send.send(message)
+        except (BrokenPipeError, ConnectionResetError):
+            raise
+        except Exception as err:  # an unpicklable value or exception
+            send.send(("error", MvtopError(f"{type(err).__name__}: {err}")))
+    except (BrokenPipeError, ConnectionResetError):  # the parent is gone (stopped): nobody to tell, quietly
+        pass
+    finally:
+        send.close()
 
 
 class RayEngine:

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import csv
 import json
+import multiprocessing
+import operator
 import subprocess
 import sys
 
 from _batch_logs import CONFIG, assert_same_outputs, kill_worker_after, make_logs, serial_run
 
-from mvtop_cli.batch.engine import LocalEngine
+from mvtop_cli.batch.engine import LocalEngine, _child
 from mvtop_cli.batch.run import RECORDS_DIR, TABLE_COLUMNS, BatchProgress, format_progress, run_batch
 
 
@@ -71,3 +73,13 @@ def test_command_line_batch_summary_and_exit_code(tmp_path):
                           str(manifest), *args], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2
     assert bad.stderr.strip() == "mvtop: error: give either LOG arguments or --manifest, not both"
+
+
+def test_a_worker_whose_parent_is_gone_ends_quietly(capfd):
+    # a stopped batch or benchmark closes its end of each worker's pipe; a worker that finishes its
+    # job after that has nobody to tell, and ends without a traceback
+    recv, send = multiprocessing.Pipe(duplex=False)
+    recv.close()
+    _child(send, operator.add, 1, (1, 2))
+    assert send.closed
+    assert capfd.readouterr().err == ""

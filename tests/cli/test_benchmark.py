@@ -1,11 +1,14 @@
-"""`mvtop benchmark speed` and `mvtop benchmark accuracy` print real figures and resume."""
+"""`mvtop benchmark speed` and `mvtop benchmark accuracy` print real figures, resume, and stop cleanly."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from mvtop_cli.benchmarks.accuracy import read_results
@@ -235,3 +238,34 @@ def test_benchmark_accuracy_set_changes_the_config_of_every_run_and_binds_the_fo
     assert refused.stderr.strip() == (f"mvtop: error: {out}: its runs were made with --set contact.softness_m=0.0001 "
                                       "--set filter.temperature=0.01, not no --set (one setting per benchmark folder: "
                                       "give another --out)")
+
+
+def test_a_stopped_benchmark_stops_its_workers_and_says_how_to_go_on(tmp_path):
+    out = tmp_path / "bench"
+    proc = subprocess.Popen([sys.executable, "-m", "mvtop_cli", "benchmark", "accuracy", "--out", str(out),
+                             "--objects", "conn2", "--poses", "2", "--methods", "M-TOP", "--frames", "30",
+                             "--particles", "200", "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not all((out / "scenes" / f"conn2_{s}").is_dir() for s in (1000, 1001)):  # both workers started
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert "Traceback" not in stderr, stderr
+    assert stderr.splitlines()[-1] == (f"mvtop: benchmark accuracy interrupted (SIGTERM); the runs it finished are "
+                                       f"kept in {out}: run the same command to go on")
+    # the worker processes were stopped with it: nothing of the command's process group is left
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "worker processes outlived the stopped benchmark"
+        time.sleep(0.2)
