@@ -205,8 +205,8 @@ class Estimator:
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
-        result = self._assimilate(ps, first, bool(frame.contact), bool(observation.sensors) or bool(contact),
-                                  likelihood)
+        has_evidence = bool(observation.sensors) or bool(contact)
+        result = self._assimilate(ps, first, bool(frame.contact), has_evidence, likelihood)
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
         switch, mode_ruled_out = self._mode_check(frame, result, likelihood, contact) if checked else (None, None)
@@ -241,7 +241,7 @@ class Estimator:
             ))
             flags.append("sensor_downweighted")
         flags = list(dict.fromkeys(flags))
-        evidence = self._evidence(likelihood, result.estimate, sensor_iou, bool(observation.sensors) or bool(contact))
+        evidence = self._evidence(likelihood, result.estimate, sensor_iou, has_evidence)
 
         if not first:
             jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(frame.contact))
