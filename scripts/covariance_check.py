@@ -4,11 +4,15 @@ spread alone and with the evidence's widths added, times each of ``--factors``
 estimator/evidence.py), recomputed from each run's summary.json by `mvtop eval`'s own NEES.
 Prints one line per run and, per method and object, the fraction within the chi-square 95 % bound.
 With ``--suspect F`` also the covariance a run reports when at least the fraction F of its frames
-left some pose axis open (``output.suspect_unpinned_fraction``): the particles' spread plus the grasp
-prior's on every axis (``nees_suspect``; other runs keep the default widths x3).
+left some pose axis open (``output.suspect_unpinned_fraction``), or whose last frame has a rival mode:
+the particles' spread plus the grasp prior's about the estimate (``nees_suspect``,
+``GraspPriorModel.covariance_about`` without a symmetry fold; other runs keep the default widths x3).
+A run whose last frame was flagged reported the particles' spread plus the prior's covariance alone
+(as the code did before ``covariance_about``; runs made since are not told apart).
 Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--suspect 0.4] [--json OUT.json]"""
 import argparse
 import collections
+import csv
 import json
 import shutil
 import tempfile
@@ -21,6 +25,7 @@ from mvtop_cli.config import OutputConfig, load_config
 from mvtop_cli.estimator.evidence import evidence_covariance
 from mvtop_cli.estimator.prior import GraspPriorModel
 from mvtop_cli.filter.health import is_suspect
+from mvtop_cli.geometry import se3
 from mvtop_cli.pipelines.evaluate import evaluate
 
 
@@ -54,7 +59,11 @@ def main() -> None:
         obj, seed, method = run.name.rsplit("_", 2)
         log = args.bench / "scenes" / f"{obj}_{seed}" / "log.mcap"
         cfg = load_config(run / "config.resolved.yaml")
-        prior = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma
+        prior_model = GraspPriorModel(cfg.grasp_prior, cfg.search.bound)
+        prior = prior_model.sigma
+        with (run / "track.csv").open() as fh:
+            last_flags = list(csv.DictReader(fh))[-1]["flags"].split(";")
+        flagged = "suspect_estimate" in last_flags or "rival_mode" in last_flags
         widths = np.array([np.inf if v is None else v for v in ev["likelihood_sigma_translation_m"]]
                           + [np.inf if v is None else np.radians(v) for v in ev["likelihood_sigma_rotation_deg"]])
         reported = np.array(summary["final"]["covariance_ee"])
@@ -62,7 +71,8 @@ def main() -> None:
         # output.evidence_width_factor existed the widths as they are
         output = yaml.safe_load((run / "config.resolved.yaml").read_text()).get("output") or {}
         mode, made_with = output.get("covariance", "particles"), float(output.get("evidence_width_factor", 1.0))
-        particles = reported if mode == "particles" else reported - evidence_covariance(widths, prior, made_with)
+        particles = (reported if mode == "particles" else reported - np.diag(prior**2) if flagged
+                     else reported - evidence_covariance(widths, prior, made_with))
         row = {"run": run.name, "object": obj, "method": method, "bound": result["final"]["nees_bound"],
                "insertable": result["final"]["insertable"], "error_mm": result["final"]["pose_error_mm"],
                "nees_particles": nees_with(run, log, particles)}
@@ -72,9 +82,11 @@ def main() -> None:
             frames = summary["evidence"]["per_frame"]["rows"]
             open_frames = sum(r[2] is None or r[3] is None for r in frames)
             row["suspect"] = is_suspect(open_frames, len(frames), args.suspect)
-            open_widths = np.full(6, np.inf) if row["suspect"] else widths  # suspect: the prior's spread
-            row["nees_suspect"] = nees_with(run, log, particles + evidence_covariance(
-                open_widths, prior, OutputConfig().evidence_width_factor))
+            f = summary["final"]["T_ee_object"]
+            T_ee_est = se3.from_quat_xyzw(np.array(f["quaternion_xyzw"]), np.array(f["translation_m"]))
+            added = (prior_model.covariance_about(T_ee_est) if row["suspect"] or "rival_mode" in last_flags
+                     else evidence_covariance(widths, prior, OutputConfig().evidence_width_factor))
+            row["nees_suspect"] = nees_with(run, log, particles + added)
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
@@ -90,7 +102,7 @@ def main() -> None:
         within = {k: sum(r[k] <= r["bound"] for r in rs) for k in keys}
         print(f"{method:7s} {obj:10s} {len(rs):3d} runs, NEES within the 95 % bound: particles {within[keys[0]]}, "
               + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:]))
-              + (f", suspect -> prior {within['nees_suspect']}" if args.suspect is not None else ""))
+              + (f", suspect -> prior about the estimate {within['nees_suspect']}" if args.suspect is not None else ""))
 
 
 if __name__ == "__main__":

@@ -109,6 +109,21 @@ class GraspPriorModel:
         k = 1.0 / np.sqrt(3.0) if g.distribution == "uniform" else 1.0
         return k * np.array([g.translation_m] * 3 + [np.radians(g.rotation_deg)] * 3)
 
+    def covariance_about(self, T_ee_object: np.ndarray, fold: Callable | None = None) -> np.ndarray:
+        """The second moment (6, 6) about pose ``T_ee_object`` (4, 4) of a grasp drawn from the
+        prior, in the tangent space of ``se3.pose_spread`` (x, y, z [m], rx, ry, rz [rad], ee
+        axes, left perturbation): the prior's covariance plus ``d d^T``, ``d`` the nominal
+        grasp's offset from the pose (from its symmetric equivalent nearest the nominal, with
+        ``fold``: ``estimator.symmetry.SymmetryFold``). What the truth's spread about an
+        estimate is when the evidence cannot be trusted: anywhere the prior allows, and an
+        estimate that wandered off the nominal grasp is that much further from most of it."""
+        T_nom = self.T_ee_object_nominal
+        T = np.asarray(T_ee_object, dtype=np.float64)
+        if fold is not None:
+            T = fold(T[None], T_nom)[0]
+        d = np.concatenate([T_nom[:3, 3] - T[:3, 3], se3.matrix_to_rotvec(T_nom[:3, :3] @ T[:3, :3].T)])
+        return np.diag(self.sigma**2) + np.outer(d, d)
+
     def sample(self, n: int, rng: np.random.Generator) -> ParticleSet:
         """``n`` equally weighted particles ``T_ee_object`` drawn from the prior."""
         g = self.prior

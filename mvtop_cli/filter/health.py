@@ -284,7 +284,7 @@ class RivalMode:
             self.frame, "rival_mode",
             f"{scored}another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate "
             f"explains the sensors {self.comparison}: until a later check rules it out, the covariance is the grasp "
-            "prior's spread",
+            "prior's spread about the estimate",
             translation_mm=self.translation_mm, rotation_deg=self.rotation_deg, nats_below=self.nats_below,
             ratio=-self.nats_below,
         )
@@ -321,8 +321,8 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
             None, "suspect_estimate",
             f"at frame {rival.frame} another pose {rival.translation_mm:.2f} mm / {rival.rotation_deg:.2f} deg from "
             f"the estimate explained the sensors {rival.comparison}, and no later check ruled it out: the "
-            "estimate may be either; its covariance is the grasp prior's spread (flag rival_mode); check it against "
-            "another measurement before relying on it",
+            "estimate may be either; its covariance is the grasp prior's spread about it (flag rival_mode); check it "
+            "against another measurement before relying on it",
             rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,
         )
     fraction = open_frames / len(pinned)
@@ -330,7 +330,7 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
         None, "suspect_estimate",
         f"the evidence left some pose axis open in {open_frames} of {len(pinned)} frames ({100 * fraction:.0f} %, "
         f"threshold {100 * max_unpinned_fraction:.0f} %): the estimate may be far off; from the frame this share was "
-        "reached its covariance is the grasp prior's spread (flag suspect_estimate); check it against another "
+        "reached its covariance is the grasp prior's spread about it (flag suspect_estimate); check it against another "
         "measurement before relying on it",
         unpinned_frames=open_frames, frames=len(pinned), unpinned_fraction=fraction,
     )

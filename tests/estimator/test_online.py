@@ -98,13 +98,17 @@ def _steps(name: str, modalities: tuple[str, ...], frames: int, suspect: float |
 def test_a_suspect_frame_reports_the_grasp_priors_spread():
     """Once the frames whose evidence left some pose axis open reach the share
     ``output.suspect_unpinned_fraction``, each further frame is flagged ``suspect_estimate`` and its
-    covariance holds the grasp prior's whole spread on every axis; the estimates are unchanged."""
+    covariance holds the grasp prior's whole spread about the estimate on every axis (in place of
+    the evidence's widths): the prior's covariance plus the estimate's offset from the nominal grasp,
+    squared; the estimates are unchanged."""
+    from mvtop_cli.estimator.evidence import evidence_covariance
     from mvtop_cli.estimator.prior import GraspPriorModel
 
     # the cameras alone cannot see the shaft peg's roll about its long axis
     plain, watched = _steps("shaft_peg", ("vision",), 8, None), _steps("shaft_peg", ("vision",), 8, 0.1)
     cfg = load_config(ROOT / "configs" / "shaft_peg.yaml")
-    prior_var = GraspPriorModel(cfg.grasp_prior, cfg.search.bound).sigma ** 2
+    prior = GraspPriorModel(cfg.grasp_prior, cfg.search.bound)
+    prior_var = prior.sigma ** 2
     open_so_far = np.cumsum([not r.evidence.pinned for r in plain])
     assert [r.unpinned for r in watched] == [(int(k), i + 1) for i, k in enumerate(open_so_far)]
     assert 0 < open_so_far[-1] < 8  # this log has both kinds of frame
@@ -115,6 +119,11 @@ def test_a_suspect_frame_reports_the_grasp_priors_spread():
         assert ("suspect_estimate" in w.flags) == suspect
         if suspect:
             assert np.all(np.diag(w.covariance) >= prior_var)
+            # (the estimates stay in the nominal grasp's symmetry cell: no fold needed)
+            particles = p.covariance - evidence_covariance(p.evidence.likelihood_sigma, prior.sigma,
+                                                           cfg.output.evidence_width_factor)
+            np.testing.assert_allclose(w.covariance, particles + prior.covariance_about(w.T_ee_object),
+                                       rtol=1e-9, atol=1e-15)
             # the axes the frame pinned widen to the prior's spread; an open one had it already
             assert np.all(np.diag(w.covariance) >= np.diag(p.covariance))
             assert np.any(np.diag(w.covariance) > np.diag(p.covariance))
