@@ -62,7 +62,7 @@ def main() -> None:
         prior_model = GraspPriorModel(cfg.grasp_prior, cfg.search.bound)
         prior = prior_model.sigma
         with (run / "track.csv").open() as fh:
-            last_flags = list(csv.DictReader(fh))[-1]["flags"].split(";")
+            last_flags = list(csv.DictReader(fh))[-1]["flags"].split("|")
         flagged = "suspect_estimate" in last_flags or "rival_mode" in last_flags
         widths = np.array([np.inf if v is None else v for v in ev["likelihood_sigma_translation_m"]]
                           + [np.inf if v is None else np.radians(v) for v in ev["likelihood_sigma_rotation_deg"]])
