@@ -158,29 +158,29 @@ class LocalEngine:
                 recv.close()
 
 
-def _stop(signum: int, _frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def _child(send, fn: Callable, threads: int, args: tuple) -> None:
     """A local worker process: run one job, send ("ok", value) or ("error", exception). SIGTERM
     (the driver stopping) stops the job like Ctrl-C: it cleans up and the process exits."""
-    signal.signal(signal.SIGTERM, _stop)
+    from ..pipelines.checkpoint import Terminated
+
+    def stop(signum: int, _frame) -> None:
+        raise Terminated(signum)
+
+    signal.signal(signal.SIGTERM, stop)
     try:
         message = ("ok", call_with_threads(fn, threads, args))
     except Exception as err:  # the job's outcome
         message = ("error", err)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the job stops (leaving its checkpoint), quietly
         sys.exit(130)
+    gone = (BrokenPipeError, ConnectionResetError)  # the parent is gone (stopped): nobody to tell, quietly
     try:
-        try:
-            send.send(message)
-        except (BrokenPipeError, ConnectionResetError):
-            raise
-        except Exception as err:  # an unpicklable value or exception
-            send.send(("error", MvtopError(f"{type(err).__name__}: {err}")))
-    except (BrokenPipeError, ConnectionResetError):  # the parent is gone (stopped): nobody to tell, quietly
+        send.send(message)
+    except gone:
         pass
+    except Exception as err:  # an unpicklable value or exception
+        with contextlib.suppress(*gone):
+            send.send(("error", MvtopError(f"{type(err).__name__}: {err}")))
     finally:
         send.close()
 

@@ -275,16 +275,17 @@ class Estimator:
         self.particles = result.particles
         est = result.estimate
         covariance = result.spread.covariance
-        if self.cfg.output.covariance == "particles_and_evidence" and suspect:
-            # once the evidence has left some axis open too often, or another pose explains it about
-            # as well (a mode the sensors cannot rule out), the truth may be anywhere the grasp prior
-            # allows: its spread about the estimate, the estimate's offset from the nominal grasp too
-            covariance = covariance + self.prior.covariance_about(est, self.fold)
-        elif self.cfg.output.covariance == "particles_and_evidence" and evidence is not None:
-            # the particles can collapse further than the evidence supports (tempering, resampling):
-            # the reported covariance adds what the likelihood itself leaves open about the estimate
-            covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma,
-                                                          self.cfg.output.evidence_width_factor)
+        if self.cfg.output.covariance == "particles_and_evidence":
+            if suspect:
+                # once the evidence has left some axis open too often, or another pose explains it about
+                # as well (a mode the sensors cannot rule out), the truth may be anywhere the grasp prior
+                # allows: its spread about the estimate, the estimate's offset from the nominal grasp too
+                covariance = covariance + self.prior.covariance_about(est, self.fold)
+            elif evidence is not None:
+                # the particles can collapse further than the evidence supports (tempering, resampling):
+                # the reported covariance adds what the likelihood itself leaves open about the estimate
+                covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma,
+                                                              self.cfg.output.evidence_width_factor)
         self.remember(frame)
         n = len(result.particles.poses)
         keep = self.rng.choice(n, size=min(self.cfg.output.track_particles, n), replace=False)
