@@ -9,11 +9,12 @@ import sys
 from pathlib import Path
 
 import yaml
+from _real_data import REAL_DATA, needs_real_data
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_logs" / "cube.mcap"
 CONFIG = REPO / "configs" / "cube.yaml"
-REAL = REPO.parent / "shared" / "data" / "real" / "rosbag2_mcap"
+REAL = REAL_DATA / "rosbag2_mcap"
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -47,6 +48,7 @@ def test_inspect_sample_log_with_its_config():
     assert "sensor_msgs/msg/CompressedImage" in proc.stdout
 
 
+@needs_real_data
 def test_inspect_real_rosbag2_log_against_a_config_reports_missing_topics():
     proc = run("inspect", str(REAL / "rosbag2_py_test_resources_mcap_talker" / "talker.mcap"), "--config", str(CONFIG))
     line = one_error_line(proc)

@@ -13,9 +13,10 @@ from pathlib import Path
 
 import pytest
 import yaml
+from _real_data import REAL_DATA, needs_real_data
 
 REPO = Path(__file__).resolve().parents[2]
-MESHES = REPO / ".." / "shared" / "data" / "real" / "industreal_meshes"
+MESHES = REAL_DATA / "industreal_meshes"
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -26,6 +27,7 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return proc
 
 
+@needs_real_data
 def test_industreal_peg_from_raw_cad_to_an_evaluated_estimate(tmp_path):
     peg = MESHES / "industreal_rectangular_peg_12mm.obj"
     tray = MESHES / "industreal_tray_insert_rectangular_peg_12mm.obj"

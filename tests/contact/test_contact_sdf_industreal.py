@@ -3,17 +3,16 @@ the socket's hole floor is at z = 3 mm, and the peg at identity rests on it)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import trimesh
+from _real_data import REAL_DATA, needs_real_data
 
 from mvtop_cli.contact.fcl_distance import FclDistance
 from mvtop_cli.contact.sdf import EnvironmentSDF, ObjectSignedDistance, sample_surface_points
 
 MM = 1e-3
-INDUSTREAL = Path(__file__).parents[3] / "shared" / "data" / "real" / "industreal_meshes"
+INDUSTREAL = REAL_DATA / "industreal_meshes"
 SOCKET = INDUSTREAL / "industreal_tray_insert_rectangular_peg_12mm.obj"
 PEG = INDUSTREAL / "industreal_rectangular_peg_12mm.obj"
 
@@ -23,7 +22,7 @@ def translation(x=0.0, y=0.0, z=0.0) -> np.ndarray:
     T[:3, 3] = (x, y, z)
     return T
 
-pytestmark = pytest.mark.skipif(not SOCKET.is_file(), reason=f"{SOCKET} not present")
+pytestmark = needs_real_data
 
 
 @pytest.fixture(scope="module")

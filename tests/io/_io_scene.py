@@ -1,4 +1,4 @@
-"""A synthetic visuo-tactile log with known motion (imported by the io tests), and the real-data path."""
+"""A synthetic visuo-tactile log with known motion (imported by the io tests), and the real rosbag2 logs' folder."""
 
 from __future__ import annotations
 
@@ -6,12 +6,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from _real_data import REAL_DATA
 
 from mvtop_cli.geometry import se3
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.io.mcap_writer import LogWriter
 
-REAL = Path(__file__).parent / "../../../shared/data/real/rosbag2_mcap"
+REAL = REAL_DATA / "rosbag2_mcap"
 
 T0 = 1_700_000_000_000_000_000  # a realistic epoch stamp [ns]
 SEC = 1_000_000_000

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 from _io_scene import MS, REAL, T0, write_scene
+from _real_data import needs_real_data
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
@@ -57,6 +58,7 @@ REAL_LOGS = [
 ]
 
 
+@needs_real_data
 @pytest.mark.parametrize("path,topics,start,end,compression", REAL_LOGS, ids=lambda v: getattr(v, "name", None))
 def test_real_rosbag2_logs(path, topics, start, end, compression):
     with McapLog(path) as log:
@@ -75,6 +77,7 @@ def test_real_rosbag2_logs(path, topics, start, end, compression):
         assert times == sorted(times) and (times[0], times[-1]) == (start, end)
 
 
+@needs_real_data
 @pytest.mark.parametrize("folder", [p.parent for p in REAL.glob("*/metadata.yaml")], ids=lambda p: p.name)
 def test_bag_folders_agree_with_their_metadata_yaml(folder):
     info = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -86,6 +89,7 @@ def test_bag_folders_agree_with_their_metadata_yaml(folder):
     assert s.end_ns - s.start_ns == info["duration"]["nanoseconds"]
 
 
+@needs_real_data
 def test_split_bag_reads_as_one_log_in_time_order():
     assert [p.name for p in bag_files(MULTI)] == [f"multiple_files_{i}.mcap" for i in range(3)]
     with McapLog(MULTI) as log:
@@ -109,6 +113,7 @@ def test_split_bag_reads_as_one_log_in_time_order():
     assert rate == pytest.approx(500.0, rel=1e-3)
 
 
+@needs_real_data
 def test_real_messages_decode():
     with McapLog(REAL / "rosbag2_py_test_resources_mcap_talker") as log:
         topic = [m.msg.data for m in log.messages("/topic")]
@@ -120,6 +125,7 @@ def test_real_messages_decode():
     assert basic.msg.int32_value == 123
 
 
+@needs_real_data
 def test_service_event_schemas_fail_to_decode_with_a_clear_error():
     # rosbag2 records service events with the .srv text (request --- response) as
     # schema; mcap_ros2 cannot parse that. Reading them undecoded still works.

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _real_data import REAL_DATA, needs_real_data
 
 from mvtop_cli.errors import ConfigError, EstimationError
 from mvtop_cli.masking import base
@@ -30,7 +30,7 @@ from mvtop_cli.sim.tactile import box_indentation_m, make_background, render_tac
 
 MM_PER_PX = 0.1245
 SHAPE = (120, 160)
-REAL = Path(__file__).parents[3] / "shared" / "data" / "real" / "gelsight_taxim" / "dataPack_small.npz"
+REAL = REAL_DATA / "gelsight_taxim" / "dataPack_small.npz"
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -66,6 +66,7 @@ def real_errors() -> dict[str, np.ndarray]:
     return {"centroid_px": np.array(centroid), "radius_px": np.array(radius)}
 
 
+@needs_real_data
 def test_real_presses_centroid_matches_labels(real_errors):
     """Labelled contact centres vs mask centroids over 49 presses of a 4 mm ball.
 
@@ -80,6 +81,7 @@ def test_real_presses_centroid_matches_labels(real_errors):
     assert c.max() < 6.0
 
 
+@needs_real_data
 def test_real_presses_radius_matches_labels(real_errors):
     """Equivalent radius sqrt(area/pi) vs labelled radius (15-17 px).
 
@@ -92,6 +94,7 @@ def test_real_presses_radius_matches_labels(real_errors):
     assert np.abs(r).max() < 6.0
 
 
+@needs_real_data
 def test_real_no_contact_frame_gives_no_mask():
     with np.load(REAL) as data:
         f0 = data["f0"]

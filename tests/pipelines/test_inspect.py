@@ -6,13 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _real_data import REAL_DATA, needs_real_data
 
 from mvtop_cli.errors import LogError
 from mvtop_cli.geometry.camera import PinholeCamera
 from mvtop_cli.io.mcap_writer import LogWriter
 from mvtop_cli.pipelines.inspect import format_report, inspect_log
 
-REAL = Path(__file__).parent / "../../../shared/data/real/rosbag2_mcap"
+REAL = REAL_DATA / "rosbag2_mcap"
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
 
@@ -90,6 +91,7 @@ def test_without_requirements_tf_is_not_scanned(log_path):
     assert inspect_log(log_path, scan_tf=True).tf_frames == ("ee", "front_optical", "world")
 
 
+@needs_real_data
 def test_real_bag_with_empty_channels():
     folder = REAL / "rosbag2_py_test_resources_mcap_talker"
     report = inspect_log(

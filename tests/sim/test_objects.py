@@ -9,12 +9,13 @@ import fcl
 import numpy as np
 import pytest
 import trimesh
+from _real_data import REAL_DATA, needs_real_data
 
 from mvtop_cli.errors import MvtopError
 from mvtop_cli.sim.objects import ObjectSpec, boxes_to_mesh, get_object, list_objects
 
 NAMES = ["cube", "shaft_peg", "plug", "conn1", "conn2"]
-INDUSTREAL = Path(__file__).parents[3] / "shared" / "data" / "real" / "industreal_meshes"
+INDUSTREAL = REAL_DATA / "industreal_meshes"
 MM = 1e-3
 
 
@@ -176,6 +177,7 @@ def test_cube_and_pocket_dimensions():
     assert spec.clearance_m == pytest.approx((side[0] - spec.mesh.extents[0]) / 2)
 
 
+@needs_real_data
 def test_shaft_peg_matches_industreal_12mm_peg():
     spec = get_object("shaft_peg")
     real_peg = trimesh.load(INDUSTREAL / "industreal_rectangular_peg_12mm.obj", force="mesh")

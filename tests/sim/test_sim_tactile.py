@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from _real_data import REAL_DATA, needs_real_data
 
 from mvtop_cli.sim.tactile import (
     box_indentation_m,
@@ -19,7 +19,7 @@ from mvtop_cli.sim.tactile import (
 
 MM_PER_PX = 0.1245  # GelSight R1.5 at 120x160 (Taxim data set)
 SHAPE = (120, 160)
-REAL = Path(__file__).parents[3] / "shared" / "data" / "real" / "gelsight_taxim"
+REAL = REAL_DATA / "gelsight_taxim"
 
 
 @pytest.fixture
@@ -124,6 +124,7 @@ def test_box_indentation_geometry():
     assert (cols.max() - cols.min() + 1) == pytest.approx(2.0 / MM_PER_PX, abs=1.0)
 
 
+@needs_real_data
 def test_background_looks_like_the_real_no_contact_frame():
     """Coarse colour layout and levels of the synthetic frame against the real R1.5 f0."""
     with np.load(REAL / "dataPack_small.npz") as data:
@@ -141,6 +142,7 @@ def test_background_looks_like_the_real_no_contact_frame():
         assert step < 3.0
 
 
+@needs_real_data
 def test_press_changes_the_image_as_much_as_a_real_press():
     """A 2 mm-radius ball pressed 1.2 mm vs the 49 real presses of a 2 mm-radius ball."""
     with np.load(REAL / "dataPack_small.npz") as data:
