@@ -415,10 +415,12 @@ class Estimator:
         ``rival_rotation_deg`` (after the part's symmetries) and scores at most ``rival_margin``
         nats below it: the sensors do not tell the two apart. Returns the rival (or None) and
         whether an earlier rival is ruled out: the search's best pose is the estimate's own mode
-        (within those distances); a best pose far away but scoring lower rules nothing out, so an
-        earlier rival stands. Measured on simulated grasps: touch alone leaves such rivals on the
-        cube, plug and conn1 (1-5 mm away within a few nats), cameras and touch together none
-        within 20 nats (README)."""
+        (within those distances) and a search around the earlier rival, carried to where the
+        estimate now is, finds nothing within the margin either (``_rules_out``: a fresh search
+        that does not find a mode again has not shown it gone); a best pose far away but scoring
+        lower rules nothing out, so an earlier rival stands. Measured on simulated grasps: touch
+        alone leaves such rivals on the cube, plug and conn1 (1-5 mm away within a few nats),
+        cameras and touch together none within 20 nats (README)."""
         s = self.cfg.search
         bounded = self.prior.bounded(likelihood)
         poses, ll = self._prior_search(bounded, np.random.default_rng([self.cfg.filter.seed, index, _RIVAL_STREAM]))
@@ -428,7 +430,7 @@ class Estimator:
         moved, turned, same = self._distance(best, T_ee_object)
         below = float(bounded(T_ee_object[None])[0] - np.max(ll))
         if same:
-            return None, True
+            return None, self._rules_out(bounded, likelihood, T_ee_object, True, index)
         rival = RivalMode(index, moved, turned, below, se3.invert(T_ee_object) @ best)
         return (rival if below <= s.rival_margin else None), False
 
@@ -528,15 +530,16 @@ class Estimator:
 
     def _rules_out(self, free: Callable[[np.ndarray], np.ndarray], likelihood: Likelihood, T_ee_object: np.ndarray,
                    same: bool, index: int) -> bool:
-        """Whether a mode check at frame ``index`` that found no rival rules out the one standing
-        (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of its own)
+        """Whether a mode or rival check at frame ``index`` that found no rival rules out the one
+        standing (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of its own)
         around that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now is (its
         ``T_estimate_rival``) and spread as the motion model under contact spreads a particle over
         the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)), finds no pose still
         beyond the rival distances within ``search.rival_margin`` nats of the estimate. Scored on
         the frame's ``likelihood``, as the rival check scores, except a held-back switch
         (``RivalMode.held``): the belief-free terms ``free`` put it well ahead, and only they can
-        rule it out, since the frame's camera masks are the belief's choice. On simulated conn1
+        rule it out, since the frame's camera masks are the belief's choice (the rival check has
+        none and passes the frame's). On simulated conn1
         grasp 1053 (ends 3.06 mm off) the mode check at contact onset (frame 16) found a pose 3.07
         mm away 15 nats ahead (the truth); at frame 19 its own search of the prior ended 3 nats
         below the estimate, the carried pose (0.46 mm from the truth) scored 45 nats below, the

@@ -175,6 +175,36 @@ def test_a_rival_stands_until_a_check_finds_the_estimates_own_mode(monkeypatch):
     assert [w["frame"] for s in steps for w in s.warnings if w["kind"] == "rival_mode"] == [1]
 
 
+@pytest.mark.parametrize("rival_gone", [False, True])
+def test_a_check_that_finds_the_estimates_own_mode_rules_out_only_a_rival_that_is_gone(monkeypatch, rival_gone):
+    """A fresh search of the prior that ends in the estimate's own mode has not shown an earlier
+    rival gone: the check also searches around that rival, carried to the estimate, and rules it
+    out only when nothing there comes within ``search.rival_margin`` of the estimate. A likelihood
+    with two peaks 2 mm apart, the fresh search's poses all at the estimate's: with both peaks as
+    high the rival stands; with the rival's peak 50 nats lower it is ruled out."""
+    from mvtop_cli.filter.health import RivalMode
+    from mvtop_cli.geometry import se3
+
+    cfg = load_config(ROOT / "configs" / "cube.yaml")
+    cfg = replace(cfg, modalities=("tactile",), filter=replace(cfg.filter, num_particles=100))
+    estimator = Estimator.from_config(cfg)
+    T_est = estimator.prior.T_ee_object_nominal
+    T_estimate_rival = se3.make_pose(np.eye(3), np.array([0.002, 0.0, 0.0]))
+    T_rival = T_est @ T_estimate_rival
+    drop = 50.0 if rival_gone else 0.0
+
+    def likelihood(T):  # -(distance to the nearer peak / 0.1 mm)^2, the rival's peak lowered by drop
+        to_est = np.linalg.norm(T[:, :3, 3] - T_est[:3, 3], axis=1)
+        to_rival = np.linalg.norm(T[:, :3, 3] - T_rival[:3, 3], axis=1)
+        return np.maximum(-(to_est / 1e-4) ** 2, -(to_rival / 1e-4) ** 2 - drop)
+
+    at_estimate = np.repeat(T_est[None], 50, axis=0)
+    monkeypatch.setattr(Estimator, "_prior_search", lambda self, bounded, rng=None, *a: (at_estimate,
+                                                                                        bounded(at_estimate)))
+    estimator.rival = RivalMode(3, 2.0, 0.0, 0.0, T_estimate_rival)
+    assert estimator._rival_check(5, likelihood, T_est) == (None, rival_gone)
+
+
 def _conn2_steps(cfg, frames: int) -> list[FrameEstimate]:
     """The first ``frames`` frames of the conn2 sample stepped online with ``cfg``."""
     with McapLog(ROOT / "sample_logs" / "conn2.mcap") as log:
