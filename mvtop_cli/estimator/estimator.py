@@ -531,21 +531,21 @@ class Estimator:
     def _rules_out(self, free: Callable[[np.ndarray], np.ndarray], likelihood: Likelihood, T_ee_object: np.ndarray,
                    same: bool, index: int) -> bool:
         """Whether a mode or rival check at frame ``index`` that found no rival rules out the one
-        standing (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of its own)
-        around that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now is (its
-        ``T_estimate_rival``) and spread as the motion model under contact spreads a particle over
-        the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)), finds no pose still
-        beyond the rival distances within ``search.rival_margin`` nats of the estimate. Scored on
-        the frame's ``likelihood``, as the rival check scores, except a held-back switch
-        (``RivalMode.held``): the belief-free terms ``free`` put it well ahead, and only they can
-        rule it out, since the frame's camera masks are the belief's choice (the rival check has
-        none and passes the frame's). On simulated conn1
-        grasp 1053 (ends 3.06 mm off) the mode check at contact onset (frame 16) found a pose 3.07
-        mm away 15 nats ahead (the truth); at frame 19 its own search of the prior ended 3 nats
-        below the estimate, the carried pose (0.46 mm from the truth) scored 45 nats below, the
-        truth 15 above, and this search 10.7 above; the rival check's global search on the
-        frame's likelihood had ruled it out. A rival without a pose is ruled out as the rival
-        check rules one out, by a search that ends in the estimate's own mode (``same``)."""
+        standing (``self.rival``): a cross-entropy search (``search.mode_rounds``, a generator of
+        its own) around that hypothesis, carried to where the estimate ``T_ee_object`` (4, 4) now
+        is (its ``T_estimate_rival``) and spread as the motion model under contact spreads a
+        particle over the frames since it was found (``filter.sigma_high_*`` x sqrt(frames)),
+        finds no pose still beyond the rival distances within ``search.rival_margin`` nats of the
+        estimate. Scored on the frame's ``likelihood``, as the rival check scores, except a
+        held-back switch (``RivalMode.held``): the belief-free terms ``free`` put it well ahead,
+        and only they can rule it out, since the frame's camera masks are the belief's choice
+        (the rival check has none and passes the frame's). On simulated conn1 grasp 1053 (ends
+        3.06 mm off) the mode check at contact onset (frame 16) found a pose 3.07 mm away 15 nats
+        ahead (the truth); at frame 19 its own search of the prior ended 3 nats below the
+        estimate, the carried pose (0.46 mm from the truth) scored 45 nats below, the truth 15
+        above, and this search 10.7 above; a global search on the frame's likelihood alone had
+        ruled it out. A rival without a pose is ruled out by a search that ends in the estimate's
+        own mode (``same``)."""
         rival = self.rival
         if rival is None or rival.T_estimate_rival is None:
             return same
