@@ -778,8 +778,9 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
                f"{','.join(cfg.modalities)}; run {prof['run_time_s']:.1f} s, start-up {prof['startup_s']:.2f} s")
     first, later = prof["first_frame"], prof.get("later_frames_mean") or {}
     click.echo(f"{'stage [ms per frame]':<28} {'first frame':>12} {'later (mean)':>13}")
-    names = (("read_s", "read and decode"), ("masking_s", "masking (observation)"), ("search_s", "searches"),
-             ("filter_s", "prediction + refinement"), ("diagnostics_s", "diagnostics and checks"),
+    names = (("read_s", "read and decode"), ("masking_s", "masking (observation)"),
+             ("search_s", "search and re-search"), ("filter_s", "prediction + refinement"),
+             ("checks_s", "mode and rival checks"), ("diagnostics_s", "diagnostics"),
              ("likelihood_s", "  likelihood, in all of these"),
              ("step_s", "whole step"))
     for key, label in names:

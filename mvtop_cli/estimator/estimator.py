@@ -207,6 +207,7 @@ class Estimator:
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
         has_evidence = bool(observation.sensors) or bool(contact)
         result = self._assimilate(ps, first, bool(frame.contact), has_evidence, likelihood)
+        t_filter, search_s = time.perf_counter(), self._search_s
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
         switch, mode_ruled_out = self._mode_check(frame, result, likelihood, contact) if checked else (None, None)
@@ -214,8 +215,7 @@ class Estimator:
         if switched:
             result, likelihood, observation = switch.result, switch.likelihood, switch.observation
         self.last_likelihood = likelihood  # for diagnostics: the frame's likelihood at any pose, e.g. the truth's
-        t_filter = time.perf_counter()
-        search_before_checks = self._search_s  # the rival check below searches too
+        checks_s = time.perf_counter() - t_filter  # the mode check's searches and refinements; the rival check's below
         counts = {"invalid_log_likelihood": likelihood.invalid, "evaluated_poses": likelihood.evaluated}
         warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, self.cfg.filter.num_particles)
         flags = list(result.flags)
@@ -259,7 +259,9 @@ class Estimator:
         # where the mode check searched, it alone judges rivals (search.rival_beside_mode_check)
         judged = mode_ruled_out is not None and not self.cfg.search.rival_beside_mode_check
         if due and evidence is not None and not judged:
+            t_rival = time.perf_counter()
             rival, ruled_out = self._rival_check(frame.index, likelihood, result.estimate)
+            checks_s += time.perf_counter() - t_rival
             if rival is not None:
                 warnings.append(rival.warning())
             if rival is not None or ruled_out:
@@ -299,9 +301,8 @@ class Estimator:
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
             unpinned=self.unpinned, rival=self.rival,
-            timings={"masking_s": t_masks - t_step, "search_s": self._search_s,
-                     "filter_s": t_filter - t_masks - search_before_checks,
-                     "diagnostics_s": t_end - t_filter - (self._search_s - search_before_checks),
+            timings={"masking_s": t_masks - t_step, "search_s": search_s, "filter_s": t_filter - t_masks - search_s,
+                     "checks_s": checks_s, "diagnostics_s": t_end - t_filter - checks_s,
                      "likelihood_s": likelihood.seconds, "likelihood_calls": likelihood.calls,
                      "poses_scored": likelihood.evaluated, "step_s": t_end - t_step},
         )

@@ -87,15 +87,17 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
                                           "rows": frames}}
 
 
-STAGES = ("read_s", "masking_s", "search_s", "filter_s", "diagnostics_s", "likelihood_s", "step_s")
+STAGES = ("read_s", "masking_s", "search_s", "filter_s", "checks_s", "diagnostics_s", "likelihood_s", "step_s")
 
 
 def stage_timing(results, startup_s: float) -> dict:
     """Where the time went: ``startup_s`` (meshes, contact grid, log index) and, for the first
     frame and as the mean over the later frames, the wall seconds per stage (``read_s`` decoding
-    the frame, ``masking_s`` the observation, ``search_s`` the searches, ``filter_s`` prediction
-    and refinement, ``diagnostics_s`` the evidence diagnostic and the checks after the filter but
-    their searches (the four add up to ``step_s``, the whole step), ``likelihood_s`` all scoring),
+    the frame, ``masking_s`` the observation, ``search_s`` the filter's searches (the first
+    frame's search of the grasp prior, the re-search check), ``filter_s`` prediction and
+    refinement, ``checks_s`` the mode and rival checks (their searches and refinements),
+    ``diagnostics_s`` the rest: the evidence diagnostic, the sensor watch, the jump check (the
+    five add up to ``step_s``, the whole step), ``likelihood_s`` all scoring),
     the likelihood calls and poses scored; ``log_s`` the time the frames span and
     ``wall_over_log`` the frames' wall time (reading and steps, after the first) over it."""
     rows = [r.timings for r in results if r.timings]

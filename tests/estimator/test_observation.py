@@ -232,3 +232,54 @@ def test_contact_pixels_are_kept_where_the_receptacle_does_not_look_like_the_par
             excluded[overlap] = {cam: model.contact_pixels(frame, cam) for cam in frame.cameras}
     assert all(m is None for m in excluded[cfg.masking.contact_exclusion_overlap].values())
     assert all(m is not None and m.sum() > 100 for m in excluded[0.0].values())
+
+
+def test_per_camera_work_runs_on_threads_in_key_order_and_raises_the_first_error(monkeypatch):
+    import threading
+
+    from mvtop_cli.estimator import observation
+
+    monkeypatch.setattr(observation.os, "cpu_count", lambda: 2)
+    observer = observation.Observer(load_config(ROOT / "configs" / "cube.yaml"))
+    barrier = threading.Barrier(2, timeout=10)  # both calls must be running at once to pass it
+
+    def work(name: str) -> tuple[str, str]:
+        barrier.wait()
+        return name.upper(), threading.current_thread().name
+
+    out = observer.per_camera(work, ["side", "front"])
+    assert list(out) == ["side", "front"] and [v[0] for v in out.values()] == ["SIDE", "FRONT"]
+    assert len({v[1] for v in out.values()}) == 2
+    assert observer.per_camera(str.upper, ["front"]) == {"front": "FRONT"}  # one camera: no thread
+
+    def failing(name: str) -> str:
+        if name == "side":
+            raise ValueError(f"no image on {name}")
+        return name
+
+    with pytest.raises(ValueError, match="no image on side"):
+        observer.per_camera(failing, ["front", "side"])
+
+
+def test_camera_masks_made_on_threads_are_those_made_in_turn(monkeypatch):
+    """The cameras' proposals and GrabCut run on threads (``Observer.per_camera``): the
+    observation of a sample frame is the same, mask for mask, as with one camera after the other."""
+    from mvtop_cli.estimator import observation
+
+    cfg = load_config(ROOT / "configs" / "conn1.yaml")
+    scene = SceneModel(cfg, build_contact=False)
+    with McapLog(ROOT / "sample_logs" / "conn1.mcap") as log:
+        reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+        frame = next(f for f in reader if f.index == FRAMES[1])
+        lookup = lambda fr, t: reader.tf.lookup(cfg.frames.world, fr, t)  # noqa: E731
+        T_gt = se3.invert(frame.T_world_ee) @ frame.T_world_object_gt
+        belief = init_from_prior(T_gt, 2e-3, np.radians(3.0), 200, np.random.default_rng(3))
+        monkeypatch.setattr(observation.os, "cpu_count", lambda: 2)
+        threaded = ObservationModel(cfg, scene, lookup).observe(frame, belief, converged=False)
+        monkeypatch.setattr(observation.os, "cpu_count", lambda: 1)
+        in_turn = ObservationModel(cfg, scene, lookup).observe(frame, belief, converged=False)
+    assert threaded.cameras == in_turn.cameras and len(threaded.cameras) == 2
+    for name in threaded.cameras:
+        assert threaded.masks[name].any()
+        assert np.array_equal(threaded.masks[name], in_turn.masks[name])
+        assert threaded.outside[name] == in_turn.outside[name]
