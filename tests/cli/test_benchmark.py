@@ -47,9 +47,9 @@ def test_benchmark_speed_on_a_log_times_every_stage():
         assert part["likelihood_s"] <= part["step_s"]
         assert part["poses_scored"] >= 500 and part["likelihood_calls"] >= 1
     # a search of the grasp prior scores 3,000 + 12 x 2,700 poses (500 particles, init_factor 6, 12 rounds):
-    # the first frame runs two, the rival check one (on one of the two later frames)
+    # the first frame runs one, the rival check one (on one of the two later frames)
     prior_search = 3_000 + 12 * 2_700
-    assert prof["first_frame"]["poses_scored"] > 2 * prior_search
+    assert prior_search < prof["first_frame"]["poses_scored"] < 2 * prior_search
     assert prof["later_frames_mean"]["poses_scored"] > prior_search / 2
     # the rival check's search is timed with the checks, not with the filter's re-search (1,850 poses a frame)
     assert prof["later_frames_mean"]["checks_s"] > prof["later_frames_mean"]["search_s"]
