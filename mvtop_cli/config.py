@@ -327,12 +327,12 @@ class FilterConfig:
 
 @dataclass(frozen=True)
 class SearchConfig:
-    """The cross-entropy searches around the filter: the first frame's two independent
-    searches of the grasp prior (multi-start), and every later frame's local re-search check
-    (a frame is redone from the searched poses when they beat the belief by ``recheck_margin``)."""
+    """The cross-entropy searches around the filter: the first frame's search of the grasp
+    prior, every later frame's local re-search check (a frame is redone from the searched poses
+    when they beat the belief by ``recheck_margin``), and the dissent, rival and mode checks."""
 
     init_factor: int = field(default=6, metadata=_rng(
-        1, 1000, doc="prior samples per particle in each first-frame search"))
+        1, 1000, doc="prior samples per particle in the first-frame search and the dissent and rival checks' searches"))
     first_frame_iteration_factor: int = field(default=3, metadata=_rng(
         1, 100,
         doc="refinement iterations on the first frame (and after a re-search), in units of filter.refine_iterations"))

@@ -7,9 +7,9 @@ Algorithm 4), the tempered refinement within the frame, the weighted-mean estima
 failure checks of ``filter.health`` (ESS collapse, estimate jumps, sensors that disagree).
 
 Searches (``filter.search``). The first frame starts from a cross-entropy search of the grasp
-prior and is checked against a second, independent one (multi-start: one search alone
-sometimes settles in a wrong mode, e.g. the cube 10 degrees off); every later frame checks
-with a short local search whether the belief sits at the likelihood's peak. When a searched
+prior (a second, independent one used to check it: it no longer changed any benchmark run, the
+checks below catch the wrong modes it was for); every later frame checks with a short local
+search whether the belief sits at the likelihood's peak. When a searched
 pose beats both the estimate and the best particle by ``search.recheck_margin`` nats, the
 frame is redone from the searched poses and kept if its estimate fits better. A sensor that
 disagrees with the estimate the others agree on adds the dissent search's poses to that check
@@ -94,9 +94,9 @@ class FrameEstimate:
     # the rival mode the checks found and none has ruled out yet (None: no rival, or no check yet;
     # ``search.rival_every``; the mode check's, where it searches)
     rival: RivalMode | None = None
-    # wall seconds per stage of this frame, which add up to the step (masking, searches, prediction and
-    # refinement, diagnostics: what follows the filter but the rival check's search), and the likelihood's
-    # counts (``Estimator.step``)
+    # wall seconds per stage of this frame, which add up to the step (masking, the filter's searches,
+    # prediction and refinement, the mode and rival checks, diagnostics), and the likelihood's counts
+    # (``Estimator.step``; ``pipelines.track.stage_timing``)
     timings: dict = field(default_factory=dict)
     # per observed sensor, its observed mask and the mask rendered at the estimate, when the caller
     # keeps them (``mvtop estimate --debug-images``: ``pipelines.debug_images.frame_masks``)
@@ -608,7 +608,7 @@ class Estimator:
         dissenting sensor explains): the frame is redone from the searched population and its
         result kept (flag ``re_searched``) if its estimate fits better. The first frame has no
         second search of the grasp prior: one that started anew replaced the first search's
-        result on none of 1,868 benchmark runs and cost 45 % of that frame's poses."""
+        result on none of 1,868 benchmark runs and scored 42 % of that frame's poses."""
         f, s = self.cfg.filter, self.cfg.search
         if first:
             poses, ll = np.empty((0, 4, 4)), np.empty(0)
