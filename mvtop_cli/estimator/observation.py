@@ -481,14 +481,11 @@ class ObservationModel:
                        T_ee_object: np.ndarray) -> dict[str, np.ndarray | None]:
         """The paper's promptable mode: each camera's mask prompted by the CAD silhouette at
         ``T_ee_object`` (4, 4), cropped to its ROI (None where the silhouette is empty)."""
-        out = {}
-        for name, img in frame.cameras.items():
-            full = Roi.full(img.camera)
-            prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
-                                                      img.camera, full, occluders[name])[0]
-            if not prompt.any():
-                out[name] = None
-                continue
-            mask = self.clear_contact_pixels(frame, name, self.observer.camera_prompt(img, prompt))
-            out[name] = rois[name].crop(mask)
-        return out
+        prompts = {name: self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
+                                                          img.camera, Roi.full(img.camera), occluders[name])[0]
+                   for name, img in frame.cameras.items()}
+        shown = [name for name, prompt in prompts.items() if prompt.any()]
+        masks = self.observer.per_camera(lambda name: self.observer.camera_prompt(frame.cameras[name], prompts[name]),
+                                         shown)
+        return {name: rois[name].crop(self.clear_contact_pixels(frame, name, masks[name])) if name in masks else None
+                for name in frame.cameras}

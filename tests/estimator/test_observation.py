@@ -263,7 +263,8 @@ def test_per_camera_work_runs_on_threads_in_key_order_and_raises_the_first_error
 
 def test_camera_masks_made_on_threads_are_those_made_in_turn(monkeypatch):
     """The cameras' proposals and GrabCut run on threads (``Observer.per_camera``): the
-    observation of a sample frame is the same, mask for mask, as with one camera after the other."""
+    observation of a sample frame, and the promptable mode's masks, are the same, mask for mask,
+    as with one camera after the other."""
     from mvtop_cli.estimator import observation
 
     cfg = load_config(ROOT / "configs" / "conn1.yaml")
@@ -274,12 +275,16 @@ def test_camera_masks_made_on_threads_are_those_made_in_turn(monkeypatch):
         lookup = lambda fr, t: reader.tf.lookup(cfg.frames.world, fr, t)  # noqa: E731
         T_gt = se3.invert(frame.T_world_ee) @ frame.T_world_object_gt
         belief = init_from_prior(T_gt, 2e-3, np.radians(3.0), 200, np.random.default_rng(3))
-        monkeypatch.setattr(observation.os, "cpu_count", lambda: 2)
-        threaded = ObservationModel(cfg, scene, lookup).observe(frame, belief, converged=False)
-        monkeypatch.setattr(observation.os, "cpu_count", lambda: 1)
-        in_turn = ObservationModel(cfg, scene, lookup).observe(frame, belief, converged=False)
+        made = {}
+        for cpus in (2, 1):
+            monkeypatch.setattr(observation.os, "cpu_count", lambda cpus=cpus: cpus)
+            model = ObservationModel(cfg, scene, lookup)
+            obs = model.observe(frame, belief, converged=False)
+            made[cpus] = obs, model.prompted_masks(frame, obs.rois, obs.occluders, T_gt)
+    (threaded, prompted), (in_turn, prompted_in_turn) = made[2], made[1]
     assert threaded.cameras == in_turn.cameras and len(threaded.cameras) == 2
     for name in threaded.cameras:
-        assert threaded.masks[name].any()
+        assert threaded.masks[name].any() and prompted[name].any()
         assert np.array_equal(threaded.masks[name], in_turn.masks[name])
         assert threaded.outside[name] == in_turn.outside[name]
+        assert np.array_equal(prompted[name], prompted_in_turn[name])
