@@ -7,9 +7,9 @@ Algorithm 4), the tempered refinement within the frame, the weighted-mean estima
 failure checks of ``filter.health`` (ESS collapse, estimate jumps, sensors that disagree).
 
 Searches (``filter.search``). The first frame starts from a cross-entropy search of the grasp
-prior (a second, independent one used to check it: it no longer changed any benchmark run, the
-checks below catch the wrong modes it was for); every later frame checks with a short local
-search whether the belief sits at the likelihood's peak. When a searched
+prior (a second, independent one used to check it: on at most one of 1,810 benchmark runs did it
+redo the first frame, the checks below catch the wrong modes it was for); every later frame
+checks with a short local search whether the belief sits at the likelihood's peak. When a searched
 pose beats both the estimate and the best particle by ``search.recheck_margin`` nats, the
 frame is redone from the searched poses and kept if its estimate fits better. A sensor that
 disagrees with the estimate the others agree on adds the dissent search's poses to that check
@@ -607,8 +607,7 @@ class Estimator:
         belief missed the likelihood's peak (slip faster than the motion model, or a mode a
         dissenting sensor explains): the frame is redone from the searched population and its
         result kept (flag ``re_searched``) if its estimate fits better. The first frame has no
-        second search of the grasp prior: one that started anew replaced the first search's
-        result on none of 1,868 benchmark runs and scored 42 % of that frame's poses."""
+        second search of the grasp prior (README, *One search on the first frame*)."""
         f, s = self.cfg.filter, self.cfg.search
         if first:
             poses, ll = np.empty((0, 4, 4)), np.empty(0)
