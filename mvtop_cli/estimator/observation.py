@@ -18,13 +18,9 @@ as ``options.reference_image`` or taken as the first tactile image of the log).
 
 from __future__ import annotations
 
-import os
-import threading
-from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -69,9 +65,6 @@ def make_backend(spec: BackendConfig, cfg: Config, key: str, drop: tuple[str, ..
 # of the current frame and of an earlier one
 _PROPOSALS_KEPT = 4
 
-_K = TypeVar("_K")
-_V = TypeVar("_V")
-
 
 class Observer:
     """Makes the observed masks of one log's frames."""
@@ -86,8 +79,6 @@ class Observer:
         # the last few images' camera proposals: the mode check's earlier frames ask for each
         # image's proposals twice, for the observation and for each pose's own choice
         self._proposals: dict[tuple, list[np.ndarray]] = {}
-        self._proposals_lock = threading.Lock()
-        self._pool: ThreadPoolExecutor | None = None
         ref = cfg.masking.tactile.options.get("reference_image")
         self._reference_file = None
         if ref is not None:
@@ -104,32 +95,15 @@ class Observer:
         if min(roi_box[2], W) - max(roi_box[0], 0) < 2 or min(roi_box[3], H) - max(roi_box[1], 0) < 2:
             return []
         key = (img.sensor, img.stamp_ns, tuple(int(v) for v in roi_box))
-        with self._proposals_lock:
-            found = self._proposals.get(key)
-        if found is None:
+        if key not in self._proposals:
             extras = {"recorded_mask": img.mask} if self.recorded and img.mask is not None else {}
             found = list(self.camera.proposals(img.image, MaskContext(roi_box=roi_box, extras=extras)))
             for m in found:
                 m.setflags(write=False)
-            with self._proposals_lock:
-                if len(self._proposals) >= _PROPOSALS_KEPT:
-                    self._proposals.pop(next(iter(self._proposals)))
-                self._proposals[key] = found
-        return list(found)
-
-    def per_camera(self, work: Callable[[_K], _V], keys: Iterable[_K]) -> dict[_K, _V]:
-        """``work(key)`` for every key (one per camera), on as many threads as there are
-        cameras and cores: the backends spend most of their time in OpenCV and numpy, which
-        let the other camera's work run meanwhile. The results are those of calling ``work``
-        in turn (the backends keep no state between calls and seed their generators per call);
-        the first error is raised."""
-        keys = list(keys)
-        threads = min(len(keys), os.cpu_count() or 1)
-        if threads < 2:
-            return {k: work(k) for k in keys}
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="mvtop-masking")
-        return dict(zip(keys, self._pool.map(work, keys), strict=True))
+            if len(self._proposals) >= _PROPOSALS_KEPT:
+                self._proposals.pop(next(iter(self._proposals)))
+            self._proposals[key] = found
+        return list(self._proposals[key])
 
     def recorded_mask(self, img: SensorImage) -> np.ndarray | None:
         """The object mask (full-image bool) recorded for camera image ``img`` (``topic``
@@ -395,30 +369,25 @@ class ObservationModel:
             full = {name: self.observer.recorded_mask(img) for name, img in cameras.items()}
             full = {name: self.clear_contact_pixels(frame, name, m) for name, m in full.items() if m is not None}
             return {name: (rois[name].crop(m), rois[name].outside_area(m)) for name, m in full.items()}
-        proposals, outside, rendered, prompts = {}, {}, {}, {}
-        for name, img in cameras.items():  # the renderer's kernels run on all cores already
+        proposals, outside, rendered = {}, {}, {}
+        for name, img in cameras.items():
+            roi = rois[name]
             rendered[name] = self.scene.renderer.render_masks(
-                OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, rois[name], occluders[name])
+                OBJECT_ID, frame.T_sensor_object(name, candidates), img.camera, roi, occluders[name])
             if self.cfg.masking.grabcut_prompt == "belief":
+                prompt_roi, probability = roi, belief_probability(rendered[name], weights)
                 band_px = self.cfg.masking.belief_band_px  # the belief's own outline is left to the image
-                prompts[name] = (rois[name], belief_probability(rendered[name], weights), band_px)
             else:
-                # the prior's poses spread wider than any band: no outline of the belief to free
-                prompts[name] = (*self.prior_coverage(frame, name, img, occluders[name]), 0)
-
-        def masks_of(name: str) -> list[np.ndarray]:
-            img, (prompt_roi, probability, band_px) = cameras[name], prompts[name]
+                prompt_roi, probability = self.prior_coverage(frame, name, img, occluders[name])
+                band_px = 0  # the prior's poses spread wider than any band: no outline of the belief to free
             box = (prompt_roi.x0, prompt_roi.y0, prompt_roi.x0 + prompt_roi.width, prompt_roi.y0 + prompt_roi.height)
             props = list(self.observer.camera_proposals(img, box))
             grabcut = grabcut_from_belief(prompt_roi.image(img.image), probability, seed=seed, band_px=band_px)
             if grabcut is not None:
                 props.insert(0, prompt_roi.paste(grabcut, img.image.shape[:2], fill=False))
-            return props
-
-        for name, props in self.observer.per_camera(masks_of, cameras).items():
             props = [self.clear_contact_pixels(frame, name, p) for p in props]
-            proposals[name] = [rois[name].crop(p) for p in props]
-            outside[name] = [rois[name].outside_area(p) for p in props]
+            proposals[name] = [roi.crop(p) for p in props]
+            outside[name] = [roi.outside_area(p) for p in props]
         chosen = select_masks(proposals, rendered, {n: 1.0 for n in cameras})
         return {name: (m, outside[name][int(chosen.per_sensor_choice[name][chosen.best_pose_index])])
                 for name, m in chosen.masks.items() if m is not None}
@@ -430,16 +399,11 @@ class ObservationModel:
         recorded masks (``topic``) or colour evidence: those are free of the belief already."""
         if self.observer.recorded or self.cfg.masking.camera_evidence == "colour":
             return {}
-        windows = {name: self.prior_window(frame, name) for name in frame.cameras}
-
-        def found_in(name: str) -> list[np.ndarray]:
-            roi = windows[name]
-            return self.observer.camera_proposals(frame.cameras[name], (roi.x0, roi.y0, roi.x0 + roi.width,
-                                                                        roi.y0 + roi.height))
-
         out = {}
-        for name, found in self.observer.per_camera(found_in, frame.cameras).items():
-            roi = windows[name]
+        for name, img in frame.cameras.items():
+            roi = self.prior_window(frame, name)
+            box = (roi.x0, roi.y0, roi.x0 + roi.width, roi.y0 + roi.height)
+            found = self.observer.camera_proposals(img, box)
             if found:
                 out[name] = ProposalSet(roi, np.stack([roi.crop(self.clear_contact_pixels(frame, name, p))
                                                        for p in found]))
@@ -481,11 +445,14 @@ class ObservationModel:
                        T_ee_object: np.ndarray) -> dict[str, np.ndarray | None]:
         """The paper's promptable mode: each camera's mask prompted by the CAD silhouette at
         ``T_ee_object`` (4, 4), cropped to its ROI (None where the silhouette is empty)."""
-        prompts = {name: self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
-                                                          img.camera, Roi.full(img.camera), occluders[name])[0]
-                   for name, img in frame.cameras.items()}
-        shown = [name for name, prompt in prompts.items() if prompt.any()]
-        masks = self.observer.per_camera(lambda name: self.observer.camera_prompt(frame.cameras[name], prompts[name]),
-                                         shown)
-        return {name: rois[name].crop(self.clear_contact_pixels(frame, name, masks[name])) if name in masks else None
-                for name in frame.cameras}
+        out = {}
+        for name, img in frame.cameras.items():
+            full = Roi.full(img.camera)
+            prompt = self.scene.renderer.render_masks(OBJECT_ID, frame.T_sensor_object(name, T_ee_object)[None],
+                                                      img.camera, full, occluders[name])[0]
+            if not prompt.any():
+                out[name] = None
+                continue
+            mask = self.clear_contact_pixels(frame, name, self.observer.camera_prompt(img, prompt))
+            out[name] = rois[name].crop(mask)
+        return out

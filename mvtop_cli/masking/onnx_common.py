@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import hashlib
-import threading
 import types
 import typing
 from collections import OrderedDict
@@ -227,26 +226,21 @@ def image_key(image: np.ndarray, *extra: Any) -> tuple:
 
 
 class LruCache:
-    """A small least-recently-used cache (embeddings, detections) keyed by image content, safe
-    to share between the cameras' threads (``Observer.per_camera``): ``compute`` runs outside
-    the lock, so two cameras' models run at once."""
+    """A small least-recently-used cache (embeddings, detections) keyed by image content."""
 
     def __init__(self, size: int):
         self.size = int(size)
         self._items: OrderedDict = OrderedDict()
-        self._lock = threading.Lock()
 
     def get(self, key: tuple, compute: Callable[[], T]) -> T:
-        with self._lock:
-            if key in self._items:
-                self._items.move_to_end(key)
-                return self._items[key]
+        if key in self._items:
+            self._items.move_to_end(key)
+            return self._items[key]
         value = compute()
         if self.size > 0:
-            with self._lock:
-                self._items[key] = value
-                while len(self._items) > self.size:
-                    self._items.popitem(last=False)
+            self._items[key] = value
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
         return value
 
     def __len__(self) -> int:
