@@ -6,10 +6,10 @@ then the particle filter (``filter.pf``, Algorithm 3): the motion model (``motio
 Algorithm 4), the tempered refinement within the frame, the weighted-mean estimate; and the
 failure checks of ``filter.health`` (ESS collapse, estimate jumps, sensors that disagree).
 
-Searches (``filter.search``). The first frame starts from a cross-entropy search of the grasp
-prior (a second, independent one used to check it: on at most one of 1,810 benchmark runs did it
-redo the first frame, the checks below catch the wrong modes it was for); every later frame
-checks with a short local search whether the belief sits at the likelihood's peak. When a searched
+Searches (``filter.search``). The first frame starts from one cross-entropy search of the grasp
+prior (the checks below catch the wrong modes a second one was for: README, *One search on the
+first frame*); every later frame checks with a short local search whether the belief sits at
+the likelihood's peak. When a searched
 pose beats both the estimate and the best particle by ``search.recheck_margin`` nats, the
 frame is redone from the searched poses and kept if its estimate fits better. A sensor that
 disagrees with the estimate the others agree on adds the dissent search's poses to that check

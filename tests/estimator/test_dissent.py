@@ -83,7 +83,7 @@ def test_an_outvoted_pad_draws_the_estimate_out_of_a_wrong_mode(scene):
     assert with_dissent[0][1] > 10.0  # the first frame's search misses the truth
     assert with_dissent[0][3] < 0.6  # and the left pad says so
     assert any("re_searched" in flags for _, _, flags, _ in with_dissent[1:3])
-    # out of the mode (12-19 deg off) to within 2 deg; along the peg, which this stripped scene leaves loose,
+    # out of the mode (11-17 deg off) to within 2 deg; along the peg, which this stripped scene leaves loose,
     # frames 3-7 end 0.6-2.1 mm off over filter seeds 1001-1006 (1.5-1.6 mm of it along the peg's axis here)
     for dt, dw, flags, left in with_dissent[3:]:
         assert dw < 2.0 and dt < 2.5, with_dissent
