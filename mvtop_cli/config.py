@@ -292,6 +292,9 @@ class FilterConfig:
     sigma_low_rotation_deg: float = field(default=0.1, metadata=_rng(0.0, 180.0))
     sigma_high_translation_m: float = field(default=0.0001, metadata=_rng(0.0, 0.1))
     sigma_high_rotation_deg: float = field(default=0.25, metadata=_rng(0.0, 180.0))
+    translation_axis_scale: tuple[float, float, float] = field(default=(1.0, 1.0, 1.0), metadata=_rng(
+        0.0, 1.0, doc=("multipliers of both translation sigmas along the end effector's x, y, z axes (the motion "
+                       "model, Algorithm 4): below 1 on an axis the grasp does not slip along")))
     resampling: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     ess_threshold: float = field(default=0.5, metadata=_rng(0.0, 1.0))
     refine_iterations: int = field(default=8, metadata=_rng(0, 1000, doc="0: Algorithm 3's single importance update; "

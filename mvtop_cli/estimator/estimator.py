@@ -145,7 +145,7 @@ class Estimator:
         self.fold = SymmetryFold.from_config(cfg, scene.symmetries)
         self.motion = MotionModel(
             f.sigma_low_translation_m, np.radians(f.sigma_low_rotation_deg),
-            f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg),
+            f.sigma_high_translation_m, np.radians(f.sigma_high_rotation_deg), f.translation_axis_scale,
         )
         self.pf = ParticleFilter(
             self.motion, f.resampling, f.ess_threshold, self.rng, ess_collapse_fraction=f.ess_collapse_fraction,

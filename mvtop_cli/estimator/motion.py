@@ -30,15 +30,22 @@ class MotionModel:
     the identity on the state; only the noise ``N(0, sigma)`` remains, with the high
     sigmas while the robot is in external contact (``c_k = 1``, the grasp may slip) and
     the low sigmas otherwise. Sigmas are per-axis standard deviations [m] / [rad] with the
-    module's noise convention (ee axes, about the object origin).
+    module's noise convention (ee axes, about the object origin); ``translation_axis_scale``
+    multiplies the translation sigmas along the ee x, y, z axes (``sigmas`` returns them
+    unscaled, the largest an axis can have).
     """
 
     sigma_low_translation_m: float
     sigma_low_rotation_rad: float
     sigma_high_translation_m: float
     sigma_high_rotation_rad: float
+    translation_axis_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
+        scale = np.asarray(self.translation_axis_scale, dtype=float)
+        if scale.shape != (3,) or not np.all(np.isfinite(scale)) or np.any(scale < 0):
+            raise ValueError(f"MotionModel.translation_axis_scale must be 3 finite values >= 0, "
+                             f"got {self.translation_axis_scale!r}")
         for name in (
             "sigma_low_translation_m",
             "sigma_low_rotation_rad",
@@ -69,6 +76,6 @@ class MotionModel:
             raise ValueError(f"scale must be finite and >= 0, got {scale!r}")
         st, sr = self.sigmas(contact)
         n = len(particles)
-        dt = rng.standard_normal((n, 3)) * (st * scale)
+        dt = rng.standard_normal((n, 3)) * (st * scale * np.asarray(self.translation_axis_scale))
         dw = rng.standard_normal((n, 3)) * (sr * scale)
         return particles.with_poses(perturb_about_origin(particles.poses, dt, dw))

@@ -94,11 +94,21 @@ def test_propagate_noise_matches_the_contact_sigmas(contact):
     dt, dw = _offsets(scaled.poses, T_TILTED)
     np.testing.assert_allclose(dt.std(axis=0), 0.5 * st, rtol=0.03)
     np.testing.assert_allclose(dw.std(axis=0), 0.5 * sr, rtol=0.03)
+    # translation_axis_scale narrows the translation noise per ee axis; rotations keep theirs
+    axes = MotionModel(1e-4, np.deg2rad(0.1), 1e-3, np.deg2rad(2.0), translation_axis_scale=(0.25, 0.5, 1.0))
+    assert axes.sigmas(contact) == (st, sr)
+    dt, dw = _offsets(axes.propagate(before, contact, rng, scale=0.5).poses, T_TILTED)
+    np.testing.assert_allclose(dt.std(axis=0), 0.5 * st * np.array([0.25, 0.5, 1.0]), rtol=0.03)
+    np.testing.assert_allclose(dw.std(axis=0), 0.5 * sr, rtol=0.03)
 
 
 def test_motion_model_rejects_bad_values():
     with pytest.raises(ValueError, match="sigma_high_rotation_rad"):
         MotionModel(0.0, 0.0, 0.0, -1.0)
+    with pytest.raises(ValueError, match="translation_axis_scale must be 3 finite values"):
+        MotionModel(0.0, 0.0, 0.0, 0.0, translation_axis_scale=(1.0, -0.5, 1.0))
+    with pytest.raises(ValueError, match="translation_axis_scale must be 3 finite values"):
+        MotionModel(0.0, 0.0, 0.0, 0.0, translation_axis_scale=(1.0, 1.0))
     model = MotionModel(0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="contact"):
         model.sigmas(None)
