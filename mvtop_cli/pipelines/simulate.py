@@ -58,6 +58,10 @@ DEPTH_TOLERANCE_M = 5e-5
 # the scene configs' edges.gain per built-in object: the camera contour term where the part's
 # outline stands clear of other edges in the simulated images (README: Camera contour term)
 CONTOUR_GAIN = {"plug": 3.0, "shaft_peg": 3.0}
+# the scene configs' filter.temperature per built-in object, where it differs from the default's:
+# a sharper likelihood narrows the cube's estimate along the end effector's x axis, which its
+# misses lie along (README: Likelihood temperature of the cube)
+TEMPERATURE = {"cube": 0.0015}
 
 
 @dataclass(frozen=True)
@@ -425,7 +429,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     ``gel_distance_m`` is given) and, for ``kinematics="joint-states"``, ``robot.urdf``
     (``URDF_FILE`` beside the config, see :func:`write_scene_config`). The simulated pads'
     depth is exact, so the config sets ``masking.tactile_depth_tolerance_m`` (``DEPTH_TOLERANCE_M``);
-    for the objects of ``CONTOUR_GAIN`` it turns the camera contour term on (``edges.gain``)."""
+    for the objects of ``CONTOUR_GAIN`` it turns the camera contour term on (``edges.gain``), for
+    those of ``TEMPERATURE`` it sets ``filter.temperature``."""
     options = options or SimulateOptions()
     if gel_distance_m is None:
         gel_distance_m = options.gel_distance_m
@@ -485,6 +490,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
         cfg["robot"] = {"urdf": URDF_FILE}
     if object_name in CONTOUR_GAIN:
         cfg["edges"] = {"gain": CONTOUR_GAIN[object_name]}
+    if object_name in TEMPERATURE:
+        cfg["filter"] = {"temperature": TEMPERATURE[object_name]}
     if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance
         cfg["contact"] = {"sdf_resolution_m": round(spec.clearance_m / 2.0, 9)}
     return cfg
