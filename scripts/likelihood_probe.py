@@ -6,7 +6,7 @@ steps through the ground truth and through the estimate (log-likelihood and each
 and the belief's particles (best and weighted mean log-likelihood). One JSON object per probed
 frame and line ("around": "truth" or "estimate"), gzip-compressed.
 
-Usage: .venv/bin/python scripts/likelihood_probe.py SCENE_DIR SEED FRAMES OUT.json.gz
+Usage: .venv/bin/python scripts/likelihood_probe.py SCENE_DIR SEED FRAMES OUT.jsonl.gz
   [--modalities vision,tactile,contact] [--axis 0] [--half-width-mm 0.6] [--step-mm 0.02]
 SCENE_DIR holds log.mcap and config.yaml (a benchmark folder's scenes/OBJECT_SEED); SEED is the
 filter seed (the benchmark's runs use the grasp seed); FRAMES e.g. 10-29 or 15,22,29.

@@ -43,8 +43,8 @@ class MotionModel:
 
     def __post_init__(self) -> None:
         scale = np.asarray(self.translation_axis_scale, dtype=float)
-        if scale.shape != (3,) or not np.all(np.isfinite(scale)) or np.any(scale < 0):
-            raise ValueError(f"MotionModel.translation_axis_scale must be 3 finite values >= 0, "
+        if scale.shape != (3,) or not np.all((scale >= 0) & (scale <= 1)):
+            raise ValueError(f"MotionModel.translation_axis_scale must be 3 values in [0, 1], "
                              f"got {self.translation_axis_scale!r}")
         for name in (
             "sigma_low_translation_m",

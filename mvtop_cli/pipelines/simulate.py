@@ -60,7 +60,7 @@ DEPTH_TOLERANCE_M = 5e-5
 CONTOUR_GAIN = {"plug": 3.0, "shaft_peg": 3.0}
 # the scene configs' filter.temperature per built-in object, where it differs from the default's:
 # a sharper likelihood narrows the cube's estimate along the end effector's x axis, which its
-# misses lie along (README: Likelihood temperature of the cube)
+# misses lie along (README: The cube's likelihood temperature)
 TEMPERATURE = {"cube": 0.0015}
 
 

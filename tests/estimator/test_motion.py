@@ -105,10 +105,12 @@ def test_propagate_noise_matches_the_contact_sigmas(contact):
 def test_motion_model_rejects_bad_values():
     with pytest.raises(ValueError, match="sigma_high_rotation_rad"):
         MotionModel(0.0, 0.0, 0.0, -1.0)
-    with pytest.raises(ValueError, match="translation_axis_scale must be 3 finite values"):
+    with pytest.raises(ValueError, match=r"translation_axis_scale must be 3 values in \[0, 1\]"):
         MotionModel(0.0, 0.0, 0.0, 0.0, translation_axis_scale=(1.0, -0.5, 1.0))
-    with pytest.raises(ValueError, match="translation_axis_scale must be 3 finite values"):
+    with pytest.raises(ValueError, match=r"translation_axis_scale must be 3 values in \[0, 1\]"):
         MotionModel(0.0, 0.0, 0.0, 0.0, translation_axis_scale=(1.0, 1.0))
+    with pytest.raises(ValueError, match=r"translation_axis_scale must be 3 values in \[0, 1\]"):
+        MotionModel(0.0, 0.0, 0.0, 0.0, translation_axis_scale=(1.0, float("nan"), 1.0))
     model = MotionModel(0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="contact"):
         model.sigmas(None)
