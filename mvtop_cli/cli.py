@@ -620,6 +620,18 @@ def eval_cmd(track_dir: Path, log_path: Path | None, gt_file: Path | None, out_d
     )
 
 
+def parse_frames(spec: str) -> list[int]:
+    """Frame indices from a ``--frames`` list such as ``0,5,10-20`` (ranges inclusive)."""
+    frames: list[int] = []
+    try:
+        for part in spec.split(","):
+            a, _, b = part.partition("-")
+            frames += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    except ValueError:
+        raise MvtopError(f"--frames: expected indices such as 0,5,10-20, got {spec!r}") from None
+    return frames
+
+
 @cli.command("render-masks")
 @click.argument("log", type=LOG_PATH)
 @CONFIG_OPTION
@@ -649,15 +661,7 @@ def render_masks_cmd(log: Path, config_path: Path | None, track_dir: Path | None
     if track_dir is not None and pose_ee is not None:
         raise MvtopError("give either --track or --pose-ee, not both")
     cfg = load_config(config_path)
-    frames = None
-    if frames_spec:
-        frames = []
-        try:
-            for part in frames_spec.split(","):
-                a, _, b = part.partition("-")
-                frames += list(range(int(a), int(b) + 1)) if b else [int(a)]
-        except ValueError:
-            raise MvtopError(f"--frames: expected indices such as 0,5,10-20, got {frames_spec!r}") from None
+    frames = parse_frames(frames_spec) if frames_spec else None
     T = None
     if pose_ee is not None:
         try:

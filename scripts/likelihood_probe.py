@@ -9,7 +9,7 @@ frame and line ("around": "truth" or "estimate"), gzip-compressed.
 Usage: .venv/bin/python scripts/likelihood_probe.py SCENE_DIR SEED FRAMES OUT.jsonl.gz
   [--modalities vision,tactile,contact] [--axis 0] [--half-width-mm 0.6] [--step-mm 0.02]
 SCENE_DIR holds log.mcap and config.yaml (a benchmark folder's scenes/OBJECT_SEED); SEED is the
-filter seed (the benchmark's runs use the grasp seed); FRAMES e.g. 10-29 or 15,22,29.
+filter seed (the benchmark's runs use the grasp seed); FRAMES as `render-masks --frames`, e.g. 10-29 or 15,22,29.
 """
 
 import argparse
@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mvtop_cli.cli import parse_frames
 from mvtop_cli.config import load_config
+from mvtop_cli.errors import MvtopError
 from mvtop_cli.estimator import Estimator
 from mvtop_cli.io.frames import FrameReader
 from mvtop_cli.io.mcap_reader import McapLog
@@ -27,10 +29,10 @@ from mvtop_cli.pipelines.estimate import EstimateOptions, apply_options, log_top
 
 
 def frames_arg(text: str) -> set[int]:
-    if "-" in text:
-        lo, hi = text.split("-")
-        return set(range(int(lo), int(hi) + 1))
-    return {int(v) for v in text.split(",")}
+    try:
+        return set(parse_frames(text))
+    except MvtopError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def main() -> None:
