@@ -321,6 +321,11 @@ class FilterConfig:
     tactile_roi_size_px: int = field(default=128, metadata=_rng(16, 1024, doc=(
         "the same for a tactile sensor's window (a 320 px GelSight pad: k = 3 at 128, 0.17 mm a ROI pixel); 256 "
         "lifted the plug and lowered conn1 (README: Scoring window)")))
+    camera_full_weight_px: float = field(default=0.0, metadata=_rng(0.0, 1e7, doc=(
+        "a camera whose observed mask covers fewer image pixels than this has its eq. 2 weight scaled by the "
+        "fraction it covers, the modality's other cameras taking up the rest of its share: an IoU over a few "
+        "pixels swings from 0 to 1 with a pixel's shift (conn2's side view, nearly hidden in its receptacle: "
+        "README, Small camera masks); 0: every camera at its full weight")))
     seed: int = field(default=0, metadata=_rng(0, 2**63 - 1))
     fold_symmetries: bool = field(default=True, metadata={"doc": (
         "summarise the belief modulo object.symmetries and object.continuous_symmetry: each particle is taken "

@@ -178,6 +178,17 @@ def scaled_weights(names: list[str], weights: np.ndarray, factor: Callable[[str]
     return scaled
 
 
+def mask_area_factor(observation: Observation, name: str, full_weight_px: float) -> float:
+    """The factor in [0, 1] of sensor ``name``'s eq. 2 weight for its observed mask's size:
+    the mask's area [image pixels] over ``full_weight_px`` (``filter.camera_full_weight_px``),
+    at most 1; 1 when ``full_weight_px`` is 0. An IoU of masks a few pixels across changes
+    from 0 to 1 with a one-pixel shift, so at full weight it outweighs every larger mask of
+    the frame (beyond the paper)."""
+    if full_weight_px <= 0:
+        return 1.0
+    return min(1.0, observation.area_px(name) / full_weight_px)
+
+
 def configured_weights(cfg: Config, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 2 weights (gamma, nu) of the observed sensors before the consistency watch: a
     sensor's ``weight``, or an equal part of its modality's share (``sensors.tactile_share``
@@ -203,7 +214,8 @@ class Likelihood:
     weight_factor : the consistency watch's factor per sensor name (see ``scaled_weights``).
 
     Eq. 2's weights: each sensor's configured ``weight``, or an equal part of its modality's
-    share (``configured_weights``), times ``weight_factor``.
+    share (``configured_weights``), times ``weight_factor`` and, for a camera, its observed
+    mask's ``mask_area_factor`` (``filter.camera_full_weight_px``).
 
     Calling it scores poses (N, 4, 4) -> (N,), NaN / +inf made -inf (``filter.result``),
     and counts every pose scored and every invalid value (``evaluated``, ``invalid``): the
@@ -218,7 +230,9 @@ class Likelihood:
         self.observation = observation
         self.base_gamma, self.base_nu = configured_weights(cfg, observation)
         self.gamma = scaled_weights(observation.tactile, self.base_gamma, weight_factor)
-        self.nu = scaled_weights(observation.cameras, self.base_nu, weight_factor)
+        full_px = cfg.filter.camera_full_weight_px
+        self.nu = scaled_weights(observation.cameras, self.base_nu,
+                                 lambda name: weight_factor(name) * mask_area_factor(observation, name, full_px))
         self.contact = bool(contact) and scene.has_contact_model
         self.gel_distance_m = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
         self.evaluated = 0

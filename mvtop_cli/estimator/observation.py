@@ -178,6 +178,12 @@ class Observation:
         """Every sensor with an observed mask: tactile first, then cameras (eq. 2's order)."""
         return self.tactile + self.cameras
 
+    def area_px(self, name: str) -> float:
+        """Sensor ``name``'s observed mask area [image pixels]: the mask in its ROI (a
+        probability map counts its sum) plus the part outside the ROI, at the image's scale."""
+        scale = self.rois[name].scale
+        return (float(np.sum(self.masks[name])) + float(self.outside[name])) / (scale * scale)
+
     def iou_with(self, name: str, full: np.ndarray) -> float:
         """IoU of sensor ``name``'s observed mask with a full-image mask (H, W) bool, e.g. the
         true silhouette, in ROI pixels (a soft IoU for soft evidence); what either mask holds

@@ -1,6 +1,6 @@
 """The frame likelihood (``estimator.likelihood.Likelihood``) on the sample logs: the ground
-truth scores at least as high as poses near it, batches score like single poses, and a
-sensor of weight 0 has no say."""
+truth scores at least as high as poses near it, batches score like single poses, a sensor
+of weight 0 has no say, and a camera with a small observed mask weighs in by its area."""
 
 from __future__ import annotations
 
@@ -140,3 +140,31 @@ def test_the_measured_indentation_rules_out_a_part_pressed_deeper_into_a_pad(nam
         assert plain[0] > 0.98 and plain[1] > 0.85, (pad, plain)
         assert limited[0] == pytest.approx(plain[0], abs=1e-3), (pad, limited)
         assert limited[1] < 0.05, (pad, limited)
+
+
+def test_a_camera_whose_observed_mask_is_small_weighs_in_by_its_area():
+    """With ``filter.camera_full_weight_px`` between the two cameras' observed areas, the
+    smaller one's eq. 2 weight is scaled by its area over that bound, the other camera takes up
+    the rest of the cameras' share, the pads keep theirs, and every score changes by exactly the
+    cameras' IoUs times the weight change over the temperature; at 0 nothing changes."""
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    assert cfg.filter.camera_full_weight_px == 0.0
+    default, T_gt, _ = _frame_likelihood("conn2", cfg)
+    obs = default.observation
+    np.testing.assert_array_equal(default.nu, default.base_nu)
+    areas = {n: obs.area_px(n) for n in obs.cameras}
+    small, large = sorted(areas, key=areas.get)
+    assert 0 < areas[small] < areas[large]
+    full_px = (areas[small] + areas[large]) / 2.0
+    on = replace(cfg, filter=replace(cfg.filter, camera_full_weight_px=full_px))
+    scaled = _frame_likelihood("conn2", on)[0]
+    i, j = obs.cameras.index(small), obs.cameras.index(large)
+    assert scaled.nu[i] == pytest.approx(default.base_nu[i] * areas[small] / full_px, rel=1e-12)
+    assert scaled.nu[j] > default.base_nu[j]
+    assert scaled.nu.sum() == pytest.approx(default.base_nu.sum(), rel=1e-12)
+    np.testing.assert_array_equal(scaled.gamma, default.gamma)
+    poses = init_from_prior(T_gt, 1e-3, np.radians(2.0), 16, np.random.default_rng(4)).poses
+    iou_v = default.iou_table(obs.cameras, poses)
+    expected = iou_v @ (scaled.nu - default.nu) / cfg.filter.temperature
+    np.testing.assert_allclose(scaled(poses) - default(poses), expected, rtol=0, atol=1e-9)
+    assert np.ptp(iou_v @ (scaled.nu - default.nu)) > 0  # the change is not a constant

@@ -232,3 +232,16 @@ def test_contact_pixels_are_kept_where_the_receptacle_does_not_look_like_the_par
             excluded[overlap] = {cam: model.contact_pixels(frame, cam) for cam in frame.cameras}
     assert all(m is None for m in excluded[cfg.masking.contact_exclusion_overlap].values())
     assert all(m is not None and m.sum() > 100 for m in excluded[0.0].values())
+
+
+def test_area_px_counts_the_mask_and_its_part_outside_the_window_in_image_pixels():
+    # a 2-fold downsampled window: each ROI pixel stands for 4 image pixels
+    roi = Roi(10, 20, 8, 6, scale=0.5)
+    mask = np.zeros((3, 4), dtype=bool)
+    mask[1, 1:4] = True
+    obs = Observation(rois={"side": roi}, occluders={"side": []}, masks={"side": mask}, outside={"side": 2.0},
+                      tactile=[], cameras=["side"], mask_mode="proposals")
+    assert obs.area_px("side") == pytest.approx((3 + 2) * 4)
+    # a probability map counts its sum
+    obs.masks["side"] = np.full((3, 4), 0.25, dtype=np.float32)
+    assert obs.area_px("side") == pytest.approx((3 + 2) * 4)
