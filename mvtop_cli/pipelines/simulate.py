@@ -58,10 +58,12 @@ DEPTH_TOLERANCE_M = 5e-5
 # the scene configs' edges.gain per built-in object: the camera contour term where the part's
 # outline stands clear of other edges in the simulated images (README: Camera contour term)
 CONTOUR_GAIN = {"plug": 3.0, "shaft_peg": 3.0}
-# the scene configs' filter.temperature per built-in object, where it differs from the default's:
-# a sharper likelihood narrows the cube's estimate along the end effector's x axis, which its
-# misses lie along (README: The cube's likelihood temperature)
-TEMPERATURE = {"cube": 0.0015}
+# the scene configs' filter settings per built-in object, where they differ from the defaults:
+# the cube's sharper likelihood narrows its estimate along the end effector's x axis, which its
+# misses lie along (README: The cube's likelihood temperature); conn2's side camera sees a few
+# pixels of the part once it is in the receptacle, and weighs in by its mask's area under 200
+# image pixels (README: Small camera masks)
+FILTER_SETTINGS = {"cube": {"temperature": 0.0015}, "conn2": {"camera_full_weight_px": 200.0}}
 
 
 @dataclass(frozen=True)
@@ -430,7 +432,7 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
     (``URDF_FILE`` beside the config, see :func:`write_scene_config`). The simulated pads'
     depth is exact, so the config sets ``masking.tactile_depth_tolerance_m`` (``DEPTH_TOLERANCE_M``);
     for the objects of ``CONTOUR_GAIN`` it turns the camera contour term on (``edges.gain``), for
-    those of ``TEMPERATURE`` it sets ``filter.temperature``."""
+    those of ``FILTER_SETTINGS`` it sets their ``filter`` keys."""
     options = options or SimulateOptions()
     if gel_distance_m is None:
         gel_distance_m = options.gel_distance_m
@@ -490,8 +492,8 @@ def scene_config(object_name: str, mesh_dir: str = "meshes", gel_distance_m: flo
         cfg["robot"] = {"urdf": URDF_FILE}
     if object_name in CONTOUR_GAIN:
         cfg["edges"] = {"gain": CONTOUR_GAIN[object_name]}
-    if object_name in TEMPERATURE:
-        cfg["filter"] = {"temperature": TEMPERATURE[object_name]}
+    if object_name in FILTER_SETTINGS:
+        cfg["filter"] = dict(FILTER_SETTINGS[object_name])
     if spec.clearance_m < SDF_RESOLUTION_M:  # contact/grid.py: the grid must resolve the clearance
         cfg["contact"] = {"sdf_resolution_m": round(spec.clearance_m / 2.0, 9)}
     return cfg
