@@ -147,8 +147,8 @@ def test_a_camera_whose_observed_mask_is_small_weighs_in_by_its_area():
     smaller one's eq. 2 weight is scaled by its area over that bound, the other camera takes up
     the rest of the cameras' share, the pads keep theirs, and every score changes by exactly the
     cameras' IoUs times the weight change over the temperature; at 0 nothing changes."""
-    cfg = load_config(ROOT / "configs" / "conn2.yaml")
-    assert cfg.filter.camera_full_weight_px == 0.0
+    shipped = load_config(ROOT / "configs" / "conn2.yaml")
+    cfg = replace(shipped, filter=replace(shipped.filter, camera_full_weight_px=0.0))  # off: every camera its share
     default, T_gt, _ = _frame_likelihood("conn2", cfg)
     obs = default.observation
     np.testing.assert_array_equal(default.nu, default.base_nu)
