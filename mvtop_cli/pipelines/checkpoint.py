@@ -361,6 +361,12 @@ class Checkpoint:
         self.write_seconds += time.perf_counter() - t0
         self.writes += 1
 
+    def saved_frames(self) -> int:
+        """Frames the state on disk records, what ``--resume`` continues after: one more than
+        ``frames_done`` when a signal lands between ``record``'s atomic write of the state and
+        its count in memory."""
+        return progress(self.dir.parent)[0]
+
     def results(self, limit: int | None = None) -> JournalResults:
         """The journaled per-frame results (the first ``limit`` of them)."""
         if self._journal is not None:

@@ -126,11 +126,12 @@ def estimate(
         if ck is None:
             raise
         ck.close()
-        if not ck.frames_done and not resume:  # nothing to resume: leave nothing behind
+        saved = ck.saved_frames()  # the state on disk, which a signal may have left one frame ahead
+        if not saved and not resume:  # nothing to resume: leave nothing behind
             ck.remove()
             if created:
                 _remove_if_empty(out_dir)
-        raise EstimateInterrupted(ck.frames_done, total, ck.dir, "frames", _signum(err)) from None
+        raise EstimateInterrupted(saved, total, ck.dir, "frames", _signum(err)) from None
     except BaseException:
         if ck is not None and not resume:
             ck.remove()

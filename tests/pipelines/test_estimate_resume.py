@@ -144,6 +144,32 @@ def test_resume_keeps_the_tactile_reference_image(tmp_path):
     assert (tmp_path / "run" / "track.csv").read_bytes() == (tmp_path / "ref" / "track.csv").read_bytes()
 
 
+def test_a_signal_after_the_state_is_written_reports_the_frames_on_disk(tmp_path, monkeypatch):
+    """Ctrl-C landing inside ``Checkpoint.record`` after its atomic write of the state but before
+    its count in memory: the interruption names the frames the checkpoint holds, which the
+    resumed run continues after."""
+    from mvtop_cli.pipelines.checkpoint import Checkpoint
+
+    cfg = load_config(CONFIG)
+    options = EstimateOptions(num_particles=30, max_frames=4)
+    record = Checkpoint.record
+
+    def record_then_stop(self, result, particles, rng, elapsed_s):
+        record(self, result, particles, rng, elapsed_s)
+        if self.frames_done == 2:
+            self.frames_done -= 1  # the state on disk says 2, the count in memory not yet
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Checkpoint, "record", record_then_stop)
+    with pytest.raises(EstimateInterrupted) as info:
+        estimate(LOG, cfg, tmp_path / "out", options)
+    assert (info.value.phase, info.value.frames_done) == ("frames", 2)
+    assert frames_done(tmp_path / "out") == 2
+    monkeypatch.setattr(Checkpoint, "record", record)
+    summary = estimate(LOG, cfg, tmp_path / "out", options, resume=True)
+    assert summary["resumed_at_frame"] == 2 and summary["frames_processed"] == 4
+
+
 def test_interrupt_while_writing_outputs_keeps_the_checkpoint(tmp_path, monkeypatch):
     import mvtop_cli.pipelines.estimate as pipeline
 
