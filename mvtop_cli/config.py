@@ -464,6 +464,20 @@ class OutputConfig:
         0.0, 1000.0, lo_open=True,
         doc="with particles_and_evidence: the likelihood's widths are taken this many times wider in the "
             "reported covariance (calibrated on benchmark seeds 3000-3005, checked on 5000-5009: README)"))
+    evidence_profile: bool = field(default=False, metadata={"doc": (
+        "on the check frames (search.rival_every, contact onsets) also measure the likelihood's profile widths "
+        "(each axis with the other five searched: estimator/evidence.py) and report the wider of them and the "
+        "probe's in the covariance until the next check; the estimates are the same either way")})
+    evidence_profile_translation_m: float = field(default=0.002, metadata=_rng(
+        1e-6, 0.1, lo_open=True, doc="the profile's farthest offset along each translation axis (also at 1/4 and 1/2)"))
+    evidence_profile_rotation_deg: float = field(default=4.0, metadata=_rng(
+        1e-4, 90.0, lo_open=True, doc="... and about each rotation axis"))
+    evidence_profile_scale: float = field(default=0.5, metadata=_rng(
+        0.0, 100.0, lo_open=True,
+        doc="the profile's search of the other coordinates starts this many probe steps wide"))
+    evidence_profile_population: int = field(default=48, metadata=_rng(
+        2, 100_000, doc="poses per offset and round of the profile's search (36 offsets share a call)"))
+    evidence_profile_rounds: int = field(default=5, metadata=_rng(1, 1000, doc="rounds of the profile's search"))
     suspect_unpinned_fraction: float | None = field(default=0.4, metadata=_rng(
         0.0, 1.0, lo_open=True,
         doc="a suspect_estimate warning when the evidence diagnostic leaves some pose axis open in at least this "

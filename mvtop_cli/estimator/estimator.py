@@ -35,7 +35,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,7 +47,7 @@ from ..filter.result import StepResult
 from ..filter.search import cross_entropy_search, local_search, tempered_resample
 from ..geometry import se3
 from ..records import Frame
-from .evidence import EvidenceReport, evidence_covariance, likelihood_widths
+from .evidence import EvidenceReport, evidence_covariance, likelihood_widths, profile_widths
 from .likelihood import Likelihood, ProposalLikelihood
 from .motion import MotionModel
 from .observation import Observation, ObservationModel
@@ -57,6 +57,7 @@ from .symmetry import SymmetryFold
 
 _RIVAL_STREAM = 0x52495641  # seeds the rival checks' generators apart from the filter's
 _MODE_STREAM = 0x4D4F4445  # and the mode checks'
+_PROFILE_STREAM = 0x50524F46  # and the evidence profiles'
 
 
 @dataclass
@@ -167,6 +168,7 @@ class Estimator:
         self.use_contact = "contact" in cfg.modalities
         self.unpinned = (0, 0)  # frames whose evidence left some pose axis open, frames with evidence
         self.rival: RivalMode | None = None  # the rival no check has ruled out yet
+        self.profile_sigma: np.ndarray | None = None  # the latest check's profile widths (output.evidence_profile)
         self.in_contact = False  # the last frame's contact state (search.check_at_contact)
         # the frames since the last contact, for the mode check (search.mode_history_frames; none kept
         # where the check never runs)
@@ -242,6 +244,12 @@ class Estimator:
             flags.append("sensor_downweighted")
         flags = list(dict.fromkeys(flags))
         evidence = self._evidence(likelihood, result.estimate, sensor_iou, has_evidence)
+        if evidence is not None and due and self.cfg.output.evidence_profile:
+            t_profile = time.perf_counter()
+            self.profile_sigma = self._profile(frame.index, likelihood, result.estimate, evidence.log_likelihood)
+            checks_s += time.perf_counter() - t_profile
+        if evidence is not None and self.profile_sigma is not None:
+            evidence = replace(evidence, profile_sigma=self.profile_sigma)
 
         if not first:
             jump = self.pf.check_jump(ps.spread(self.fold), result.estimate, bool(frame.contact))
@@ -286,7 +294,7 @@ class Estimator:
             elif evidence is not None:
                 # the particles can collapse further than the evidence supports (tempering, resampling):
                 # the reported covariance adds what the likelihood itself leaves open about the estimate
-                covariance = covariance + evidence_covariance(evidence.likelihood_sigma, self.prior.sigma,
+                covariance = covariance + evidence_covariance(evidence.widths, self.prior.sigma,
                                                               self.cfg.output.evidence_width_factor)
         self.remember(frame)
         n = len(result.particles.poses)
@@ -317,6 +325,7 @@ class Estimator:
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
         self.rival = last.rival
+        self.profile_sigma = None if last.evidence is None else last.evidence.profile_sigma
         self.in_contact = bool(last.contact)
 
     def remember(self, frame: Frame) -> None:
@@ -350,6 +359,20 @@ class Estimator:
         ll, sigma = likelihood_widths(likelihood, T_ee_object, o.evidence_step_translation_m,
                                       np.radians(o.evidence_step_rotation_deg))
         return EvidenceReport(dict(sensor_iou), ll, sigma)
+
+    def _profile(self, index: int, likelihood: Likelihood, T_ee_object: np.ndarray, centre_ll: float) -> np.ndarray:
+        """Frame ``index``'s profile widths (6,) about the estimate (``evidence.profile_widths``) on
+        the likelihood bounded by the grasp prior, from a generator of its own (seeded by
+        ``filter.seed`` and the frame index: the filter's draws, and so the estimates, are the
+        same with or without it); the search's spread is ``output.evidence_profile_scale`` probe
+        steps."""
+        o = self.cfg.output
+        rng = np.random.default_rng([self.cfg.filter.seed, index, _PROFILE_STREAM])
+        return profile_widths(
+            self.prior.bounded(likelihood), T_ee_object, centre_ll, o.evidence_profile_translation_m,
+            np.radians(o.evidence_profile_rotation_deg), o.evidence_profile_scale * o.evidence_step_translation_m,
+            np.radians(o.evidence_profile_scale * o.evidence_step_rotation_deg), rng, o.evidence_profile_population,
+            o.evidence_profile_rounds, self.cfg.search.elite_fraction)
 
     # --- the filter update -----------------------------------------------------------------
 

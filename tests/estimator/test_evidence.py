@@ -115,3 +115,123 @@ def test_the_reported_covariance_adds_the_scaled_widths_to_the_particles():
     expected = evidence_covariance(sigma, prior, 3.0) - evidence_covariance(sigma, prior, 1.0)
     np.testing.assert_allclose(b.covariance - a.covariance, expected, rtol=1e-9, atol=1e-18)
     assert np.trace(expected) > 0
+
+
+def _quadratic(T0: np.ndarray, precision: np.ndarray):
+    """-1/2 d' P d + 10 for the tangent offset d (6,) of each pose from ``T0``, as ``_gaussian``."""
+    def ll(T: np.ndarray) -> np.ndarray:
+        dt = T[:, :3, 3] - T0[:3, 3]
+        dw = se3.matrix_to_rotvec(T[:, :3, :3] @ T0[:3, :3].T)
+        d = np.concatenate([dt, dw], axis=1)
+        return -0.5 * np.einsum("ni,ij,nj->n", d, precision, d) + 10.0
+    return ll
+
+
+def _profile(ll, T0, rng_seed=0):
+    from mvtop_cli.estimator.evidence import profile_widths
+
+    return profile_widths(ll, T0, float(ll(T0[None])[0]), 2e-3, np.radians(4.0), 2.5e-4, np.radians(0.25),
+                          np.random.default_rng(rng_seed), 48, 5, 0.1)
+
+
+def test_the_profile_reads_an_oblique_ridge_that_the_axis_probe_misses():
+    """A likelihood flat along a ridge that slides along x while turning about x (a part sliding
+    along an axis the pads cannot see): the probe's x width is the ridge's narrow cross-section,
+    the profile's is the marginal width along x, sqrt(Sigma_xx) of the Gaussian."""
+    T0 = se3.make_pose(se3.rotvec_to_matrix(np.array([np.pi, 0.0, 0.1])), np.array([0.0, 0.0, 0.0125]))
+    r = np.array([1e-3, 0.0, 0.0, 1.4e-3, 0.0, 0.0])
+    r /= np.linalg.norm(r)
+    s_par, s_perp = 2e-3, 2e-4
+    precision = (np.eye(6) - np.outer(r, r)) / s_perp**2 + np.outer(r, r) / s_par**2
+    marginal = np.sqrt(np.diag(np.linalg.inv(precision)))
+    ll = _quadratic(T0, precision)
+    _, probe = likelihood_widths(ll, T0, 5e-4, np.radians(0.5))
+    profile = _profile(ll, T0)
+    assert probe[0] < 0.4 * marginal[0]  # the probe sees the cross-section: 0.25 mm against 1.16 mm
+    assert profile[0] == pytest.approx(marginal[0], rel=0.25)
+    # axes off the ridge read their width; rx's marginal (0.09 deg) is below the profile's reach
+    # (offsets of 1-4 deg: x would have to follow by 12-50 mm), so there it reads as the probe does
+    np.testing.assert_allclose(profile[[1, 2, 4, 5]], marginal[[1, 2, 4, 5]], rtol=0.25)
+    assert np.all(profile >= 0.9 * probe)
+    report = EvidenceReport({"left": 0.99}, 10.0, probe, profile)
+    np.testing.assert_array_equal(report.widths, np.maximum(probe, profile))
+    assert report.as_dict()["profile_sigma_translation_m"][0] == pytest.approx(profile[0])
+    assert "profile_sigma_translation_m" not in EvidenceReport({"left": 0.99}, 10.0, probe).as_dict()
+
+
+def test_the_profile_of_a_gaussian_without_a_ridge_is_its_standard_deviations_and_is_seeded():
+    T0 = np.eye(4)
+    sigma = np.array([2e-4, 5e-4, 1e-3, np.radians(0.2), np.radians(1.0), np.radians(3.0)])
+    ll = _gaussian(T0, sigma)
+    profile = _profile(ll, T0)
+    # axis-aligned: the pure axis step of the first round is each search's best, exactly the width
+    np.testing.assert_allclose(profile, sigma, rtol=1e-6)
+    T1 = se3.make_pose(se3.rotvec_to_matrix(np.array([np.pi, 0.0, 0.1])), np.array([0.0, 0.0, 0.0125]))
+    r = np.array([1e-3, 0.0, 0.0, 1.4e-3, 0.0, 0.0]) / np.hypot(1e-3, 1.4e-3)
+    ridge = _quadratic(T1, (np.eye(6) - np.outer(r, r)) / 2e-4**2 + np.outer(r, r) / 2e-3**2)
+    np.testing.assert_array_equal(_profile(ridge, T1), _profile(ridge, T1))  # same seed, same widths
+
+
+def test_a_profile_that_finds_a_pose_as_good_as_the_estimate_leaves_the_axis_open():
+    """A second peak 2 mm along y that scores as high as the estimate: the profile reaches it,
+    so y is open (inf) although the probe reads a narrow peak there."""
+    T0 = np.eye(4)
+    sigma = np.full(6, 2e-4)
+    near, far = _gaussian(T0, sigma), _gaussian(se3.make_pose(np.eye(3), np.array([0.0, 2e-3, 0.0])), sigma)
+
+    def two_peaks(T: np.ndarray) -> np.ndarray:
+        return np.maximum(near(T), far(T) + 0.5)
+
+    _, probe = likelihood_widths(two_peaks, T0, 5e-4, np.radians(0.5))
+    profile = _profile(two_peaks, T0)
+    assert np.isfinite(probe[1]) and np.isinf(profile[1])
+    assert np.isfinite(profile[[0, 2]]).all()
+
+
+def test_the_profile_widens_the_reported_covariance_from_the_check_frame_on_and_leaves_the_estimates():
+    """`output.evidence_profile` on the cube sample: the estimates are those of a run without it
+    (the profile draws from a generator of its own), no frame before the first check carries a
+    profile, and from that check (frame 9, `search.rival_every` 10) on the covariance holds the
+    wider of the probe's and the profile's widths, carried to the next frames and to a resumed
+    estimator."""
+    import dataclasses
+    from pathlib import Path
+
+    from mvtop_cli.config import load_config
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.estimator.evidence import evidence_covariance
+    from mvtop_cli.io.frames import FrameReader
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+
+    root = Path(__file__).resolve().parents[2]
+    base = load_config(root / "configs" / "cube.yaml")
+    base = dataclasses.replace(base, filter=dataclasses.replace(base.filter, num_particles=100))
+    assert base.search.rival_every == 10 and not base.output.evidence_profile
+    runs = {}
+    for on in (False, True):
+        cfg = dataclasses.replace(base, output=dataclasses.replace(base.output, evidence_profile=on))
+        with McapLog(root / "sample_logs" / "cube.mcap") as log:
+            reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+            est = Estimator.from_config(cfg, lambda fr, t, reader=reader: reader.tf.lookup("world", fr, t))
+            runs[on] = [est.step(frame) for frame, _ in zip(reader, range(11))]
+        runs[on, "prior"] = est.prior.sigma
+    off, on, prior = runs[False], runs[True], runs[True, "prior"]
+    for a, b in zip(off, on):
+        np.testing.assert_array_equal(a.T_ee_object, b.T_ee_object)
+        assert a.evidence.profile_sigma is None
+    assert all(b.evidence.profile_sigma is None for b in on[:9])
+    np.testing.assert_array_equal(on[9].evidence.profile_sigma, on[10].evidence.profile_sigma)
+    for k in (9, 10):
+        assert "suspect_estimate" not in on[k].flags  # else both report the prior's spread
+        e = on[k].evidence
+        expected = (evidence_covariance(e.widths, prior, base.output.evidence_width_factor)
+                    - evidence_covariance(e.likelihood_sigma, prior, base.output.evidence_width_factor))
+        np.testing.assert_allclose(on[k].covariance - off[k].covariance, expected, rtol=1e-9, atol=1e-18)
+        assert np.all(np.diag(on[k].covariance) >= np.diag(off[k].covariance))
+    assert np.any(on[9].evidence.profile_sigma > on[9].evidence.likelihood_sigma)  # the profile reads wider somewhere
+
+    resumed = Estimator.from_config(dataclasses.replace(base, output=dataclasses.replace(
+        base.output, evidence_profile=True)))
+    resumed.resume_after(on[10])
+    np.testing.assert_array_equal(resumed.profile_sigma, on[9].evidence.profile_sigma)
