@@ -33,7 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..filter.result import valid_log_likelihood
 from ..geometry.se3 import perturb_about_origin
+
+# the profile's search never narrows below this fraction of its starting spread: it keeps
+# looking about its elite's mean instead of collapsing onto one pose
+_PROFILE_SPREAD_FLOOR = 0.05
 
 
 @dataclass(frozen=True)
@@ -129,12 +134,12 @@ def profile_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_obje
     ``max_translation_m`` [m] / ``max_rotation_rad`` [rad] either way, the best log-likelihood a
     cross-entropy search of the other five coordinates finds (``population`` poses a round for
     ``rounds`` rounds, the ``elite_fraction`` best refitted, from a Gaussian of standard deviation
-    ``scale_*`` about the estimate; the first round holds the pure axis step, so the profile never
-    falls faster than the probe). An offset ``d`` whose profile falls by ``drop`` nats gives a
-    Gaussian width ``|d| / sqrt(2 drop)`` (the Laplace approximation of the profile); the axis's
-    width is the widest of its six offsets, ``inf`` where some offset scores as well as the
-    estimate or better. All 36 searches share each round's likelihood call (``rounds`` calls of
-    36 x ``population`` poses)."""
+    ``scale_*`` about the estimate, never narrower than ``_PROFILE_SPREAD_FLOOR`` of it; the first
+    round holds the pure axis step, so the profile never falls faster than the probe). An offset
+    ``d`` whose profile falls by ``drop`` nats gives a Gaussian width ``|d| / sqrt(2 drop)`` (the
+    Laplace approximation of the profile); the axis's width is the widest of its six offsets,
+    ``inf`` where some offset scores as well as the estimate or better. All 36 searches share each
+    round's likelihood call (``rounds`` calls of 36 x ``population`` poses)."""
     fractions = np.array([-1.0, -0.5, -0.25, 0.25, 0.5, 1.0])
     reach = np.array([max_translation_m] * 3 + [max_rotation_rad] * 3)
     scale = np.array([scale_translation_m] * 3 + [scale_rotation_rad] * 3)
@@ -156,13 +161,12 @@ def profile_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_obje
             d[:, 0] = mean  # the pure axis step
         flat = d.reshape(-1, 6)
         poses = perturb_about_origin(np.broadcast_to(T, (len(flat), 4, 4)), flat[:, :3], flat[:, 3:])
-        ll = np.asarray(log_likelihood(poses), dtype=np.float64).reshape(groups, population)
-        ll = np.where(np.isnan(ll) | (ll == np.inf), -np.inf, ll)
+        ll = valid_log_likelihood(log_likelihood(poses))[0].reshape(groups, population)
         best = np.maximum(best, ll.max(axis=1))
         order = np.argsort(-ll, axis=1, kind="stable")[:, :n_elite]
         elite = np.take_along_axis(d, order[:, :, None], axis=1)
         mean = np.where(held, offset[:, None], elite.mean(axis=1))
-        sd = np.where(held, 0.0, np.maximum(elite.std(axis=1), 0.05 * scale[None, :]))
+        sd = np.where(held, 0.0, np.maximum(elite.std(axis=1), _PROFILE_SPREAD_FLOOR * scale[None, :]))
     with np.errstate(divide="ignore", invalid="ignore"):
         drop = centre_ll - best
         sigma = np.where(drop > 0, np.abs(offset) / np.sqrt(2.0 * drop), np.inf)
