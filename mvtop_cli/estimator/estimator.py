@@ -95,6 +95,9 @@ class FrameEstimate:
     # the rival mode the checks found and none has ruled out yet (None: no rival, or no check yet;
     # ``search.rival_every``; the mode check's, where it searches)
     rival: RivalMode | None = None
+    # the latest check's profile widths (6,) (``output.evidence_profile``; None: none measured yet), which
+    # the reported covariance uses until the next check, whether or not this frame had evidence
+    profile_sigma: np.ndarray | None = None
     # wall seconds per stage of this frame, which add up to the step (masking, the filter's searches,
     # prediction and refinement, the mode and rival checks, diagnostics), and the likelihood's counts
     # (``Estimator.step``; ``pipelines.track.stage_timing``)
@@ -308,7 +311,7 @@ class Estimator:
             particles_world=frame.T_world_ee @ result.particles.poses[keep], T_world_object_gt=frame.T_world_object_gt,
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
-            unpinned=self.unpinned, rival=self.rival,
+            unpinned=self.unpinned, rival=self.rival, profile_sigma=self.profile_sigma,
             timings={"masking_s": t_masks - t_step, "search_s": search_s, "filter_s": t_filter - t_masks - search_s,
                      "checks_s": checks_s, "diagnostics_s": t_end - t_filter - checks_s,
                      "likelihood_s": likelihood.seconds, "likelihood_calls": likelihood.calls,
@@ -319,13 +322,13 @@ class Estimator:
         """Continue after frame ``last`` with the state it carried over: the sensor consistency
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
         same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
-        the rival no check has ruled out yet (``FrameEstimate.rival``) and the contact state
-        (``search.check_at_contact``)."""
+        the rival no check has ruled out yet (``FrameEstimate.rival``), the latest profile widths
+        (``FrameEstimate.profile_sigma``) and the contact state (``search.check_at_contact``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
         self.rival = last.rival
-        self.profile_sigma = None if last.evidence is None else last.evidence.profile_sigma
+        self.profile_sigma = last.profile_sigma
         self.in_contact = bool(last.contact)
 
     def remember(self, frame: Frame) -> None:

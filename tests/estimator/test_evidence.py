@@ -235,3 +235,8 @@ def test_the_profile_widens_the_reported_covariance_from_the_check_frame_on_and_
         base.output, evidence_profile=True)))
     resumed.resume_after(on[10])
     np.testing.assert_array_equal(resumed.profile_sigma, on[9].evidence.profile_sigma)
+    # a frame without evidence (no sensor, no contact term) still carries the check's widths over
+    resumed = Estimator.from_config(dataclasses.replace(base, output=dataclasses.replace(
+        base.output, evidence_profile=True)))
+    resumed.resume_after(dataclasses.replace(on[10], evidence=None))
+    np.testing.assert_array_equal(resumed.profile_sigma, on[9].evidence.profile_sigma)
