@@ -8,8 +8,13 @@ left some pose axis open (``output.suspect_unpinned_fraction``), or whose last f
 the particles' spread plus the grasp prior's about the estimate (``nees_suspect``,
 ``GraspPriorModel.covariance_about`` without a symmetry fold; other runs keep the default widths x3).
 A run whose last frame was flagged reported the particles' spread plus the prior's covariance alone
-(as the code did before ``covariance_about``; runs made since are not told apart).
-Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--suspect 0.4] [--json OUT.json]"""
+(as the code did before ``covariance_about``; runs made since are not told apart). A run made with
+``output.evidence_profile`` reported the wider of the probe's and the profile's widths per axis (both in
+summary.json's evidence block), times the factor; ``--profile-factors G`` adds, for such runs, the NEES
+with the probe's widths times ``output.evidence_width_factor`` against the profile's times each G
+(``nees_profile_xG``: the wider per axis).
+Usage: .venv/bin/python scripts/covariance_check.py BENCH_DIR [--factors 1,3] [--suspect 0.4]
+       [--profile-factors 1,2,3] [--json OUT.json]"""
 import argparse
 import collections
 import csv
@@ -39,14 +44,23 @@ def nees_with(run: Path, log: Path, covariance: np.ndarray) -> float:
         return float(evaluate(track, log, None, Path(tmp) / "eval")["final"]["nees"])
 
 
+def axis_widths(evidence: dict, key: str) -> np.ndarray:
+    """(6,) widths [m, rad] of summary.json's evidence block ``KEY_translation_m`` / ``KEY_rotation_deg``
+    (null: open, inf)."""
+    return np.array([np.inf if v is None else v for v in evidence[f"{key}_translation_m"]]
+                    + [np.inf if v is None else np.radians(v) for v in evidence[f"{key}_rotation_deg"]])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bench", type=Path)
     ap.add_argument("--factors", default="1,3", help="comma-separated evidence width factors")
     ap.add_argument("--suspect", type=float, default=None, help="suspect_unpinned_fraction to test")
+    ap.add_argument("--profile-factors", default="", help="comma-separated factors of the profile's widths")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     factors = [float(f) for f in args.factors.split(",")]
+    profile_factors = [float(f) for f in args.profile_factors.split(",") if f]
     rows = []
     for run in sorted((args.bench / "runs").iterdir()):
         if not (run / "result.json").is_file():
@@ -64,20 +78,25 @@ def main() -> None:
         with (run / "track.csv").open() as fh:
             last_flags = list(csv.DictReader(fh))[-1]["flags"].split("|")
         flagged = "suspect_estimate" in last_flags or "rival_mode" in last_flags
-        widths = np.array([np.inf if v is None else v for v in ev["likelihood_sigma_translation_m"]]
-                          + [np.inf if v is None else np.radians(v) for v in ev["likelihood_sigma_rotation_deg"]])
+        widths = axis_widths(ev, "likelihood_sigma")
+        profile = axis_widths(ev, "profile_sigma") if "profile_sigma_translation_m" in ev else None
+        used = widths if profile is None else np.maximum(widths, profile)  # EvidenceReport.widths
         reported = np.array(summary["final"]["covariance_ee"])
         # runs made before output.covariance existed reported the particles' spread alone, before
         # output.evidence_width_factor existed the widths as they are
         output = yaml.safe_load((run / "config.resolved.yaml").read_text()).get("output") or {}
         mode, made_with = output.get("covariance", "particles"), float(output.get("evidence_width_factor", 1.0))
         particles = (reported if mode == "particles" else reported - np.diag(prior**2) if flagged
-                     else reported - evidence_covariance(widths, prior, made_with))
+                     else reported - evidence_covariance(used, prior, made_with))
         row = {"run": run.name, "object": obj, "method": method, "bound": result["final"]["nees_bound"],
                "insertable": result["final"]["insertable"], "error_mm": result["final"]["pose_error_mm"],
                "nees_particles": nees_with(run, log, particles)}
         for f in factors:
             row[f"nees_evidence_x{f:g}"] = nees_with(run, log, particles + evidence_covariance(widths, prior, f))
+        for g in profile_factors if profile is not None else ():
+            wider = np.maximum(made_with * widths, g * profile)
+            added = np.diag(prior**2) if flagged else evidence_covariance(wider, prior)
+            row[f"nees_profile_x{g:g}"] = nees_with(run, log, particles + added)
         if args.suspect is not None:
             frames = summary["evidence"]["per_frame"]["rows"]
             open_frames = sum(r[2] is None or r[3] is None for r in frames)
@@ -94,6 +113,7 @@ def main() -> None:
     keys = ["nees_particles"] + [f"nees_evidence_x{f:g}" for f in factors]
     if args.suspect is not None:
         keys.append("nees_suspect")
+    profile_keys = [f"nees_profile_x{g:g}" for g in profile_factors]
     groups = collections.defaultdict(list)
     for r in rows:
         groups[(r["method"], "all")].append(r)
@@ -102,7 +122,9 @@ def main() -> None:
         within = {k: sum(r[k] <= r["bound"] for r in rs) for k in keys}
         print(f"{method:7s} {obj:10s} {len(rs):3d} runs, NEES within the 95 % bound: particles {within[keys[0]]}, "
               + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:]))
-              + (f", suspect -> prior about the estimate {within['nees_suspect']}" if args.suspect is not None else ""))
+              + (f", suspect -> prior about the estimate {within['nees_suspect']}" if args.suspect is not None else "")
+              + "".join(f", probe x{OutputConfig().evidence_width_factor:g} | profile x{k.rsplit('x', 1)[1]} "
+                        f"{sum(r[k] <= r['bound'] for r in rs if k in r)}" for k in profile_keys))
 
 
 if __name__ == "__main__":
