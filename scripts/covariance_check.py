@@ -123,7 +123,7 @@ def main() -> None:
         print(f"{method:7s} {obj:10s} {len(rs):3d} runs, NEES within the 95 % bound: particles {within[keys[0]]}, "
               + ", ".join(f"evidence x{f:g} {within[k]}" for f, k in zip(factors, keys[1:]))
               + (f", suspect -> prior about the estimate {within['nees_suspect']}" if args.suspect is not None else "")
-              + "".join(f", probe x{OutputConfig().evidence_width_factor:g} | profile x{k.rsplit('x', 1)[1]} "
+              + "".join(f", probe x its run's factor | profile x{k.rsplit('x', 1)[1]} "
                         f"{sum(r[k] <= r['bound'] for r in rs if k in r)}" for k in profile_keys))
 
 
