@@ -85,6 +85,30 @@ def test_hard_scene_changes_the_camera_images_only(two_scenes):
     assert spread(hard_frames) > spread(default)
 
 
+def _messages(path) -> dict[str, list[tuple[int, bytes]]]:
+    from mcap.reader import make_reader
+
+    out: dict[str, list[tuple[int, bytes]]] = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            out.setdefault(channel.topic, []).append((message.log_time, bytes(message.data)))
+    return out
+
+
+def test_hard_scene_leaves_every_topic_but_the_camera_images_byte_identical(two_scenes):
+    # what a method without cameras (M-TOP) reads is the default scene's: its hard-scene runs are its default runs
+    default, hard_log = _messages(two_scenes / "default.mcap"), _messages(two_scenes / "hard.mcap")
+    assert set(default) == set(hard_log)
+    images = {f"/cameras/{c}/image/compressed" for c in ("front", "side")}
+    assert images <= set(default)
+    for topic in sorted(set(default) - images):
+        assert default[topic] == hard_log[topic], topic
+    assert {"/tactile/left/image/compressed", "/contact", "/tf", "/cameras/front/mask/compressed"} <= set(default)
+    for topic in images:
+        assert [t for t, _ in default[topic]] == [t for t, _ in hard_log[topic]]
+        assert all(a != b for (_, a), (_, b) in zip(default[topic], hard_log[topic]))
+
+
 def test_recorded_masks_follow_the_visible_object(two_scenes):
     (f, *_) = _frames(two_scenes / "default.mcap")
     img = f.cameras["front"]
