@@ -791,6 +791,7 @@ def _profile_estimate(log_path: Path, config_path: Path, max_frames: int | None,
         click.echo(f"{label:<28} {1e3 * first[key]:>12.1f} {1e3 * later.get(key, float('nan')):>13.1f}")
     for key, label in (("likelihood_calls", "likelihood calls"), ("poses_scored", "poses scored")):
         click.echo(f"{label:<28} {first[key]:>12.0f} {later.get(key, float('nan')):>13.0f}")
+    click.echo(f"later frames in tracking mode: {prof.get('tracked_frames', 0)} of {max(prof['frames'] - 1, 0)}")
     ratio = prof["wall_over_log"]
     click.echo("wall time over log time (frames after the first): " + ("n/a" if ratio is None else f"{ratio:.2f}"))
     click.echo(f"masking backends per frame ({cfg.masking.camera.backend} cameras, "

@@ -299,6 +299,11 @@ class FilterConfig:
     ess_threshold: float = field(default=0.5, metadata=_rng(0.0, 1.0))
     refine_iterations: int = field(default=8, metadata=_rng(0, 1000, doc="0: Algorithm 3's single importance update; "
                                                                           "more: the tempered SMC refinement's stages"))
+    tracking_particles: int = field(default=0, metadata=_rng(0, 1_000_000, doc=(
+        "tracking mode: a later frame that is no check frame, keeps the previous frame's contact state and follows a "
+        "settled frame (no search, switch, collapse, forced tempering, warning of suspicion or rival) is refined into "
+        "this many particles, drawn from the density of all predicted ones; every other frame into num_particles "
+        "again; 0: off, every frame num_particles (README: Tracking mode)")))
     refine_shrink: float = field(default=0.5, metadata=_rng(
         0.0, 1.0, lo_open=True, doc="factor of the refinement's Metropolis proposal scale when its acceptance is low"))
     refine_target_ess_fraction: float = field(default=0.5, metadata=_rng(

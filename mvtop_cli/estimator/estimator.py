@@ -173,6 +173,7 @@ class Estimator:
         self.rival: RivalMode | None = None  # the rival no check has ruled out yet
         self.profile_sigma: np.ndarray | None = None  # the latest check's profile widths (output.evidence_profile)
         self.in_contact = False  # the last frame's contact state (search.check_at_contact)
+        self.settled = False  # whether the last frame left a settled belief (filter.tracking_particles)
         # the frames since the last contact, for the mode check (search.mode_history_frames; none kept
         # where the check never runs)
         checks = s.mode_check and "vision" in cfg.modalities and "tactile" in cfg.modalities
@@ -206,12 +207,14 @@ class Estimator:
         # evidence (eq. 8-9) only with the contact modality
         contact = self._evidence_contact(frame)
         due = self._check_due(frame.index, onset=bool(frame.contact) and not first and not self.in_contact)
+        tracking = (self.cfg.filter.tracking_particles > 0 and not first and not due and self.settled
+                    and bool(frame.contact) == self.in_contact)
         self.in_contact = bool(frame.contact)
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
         has_evidence = bool(observation.sensors) or bool(contact)
-        result = self._assimilate(ps, first, bool(frame.contact), has_evidence, likelihood)
+        result = self._assimilate(ps, first, bool(frame.contact), has_evidence, likelihood, tracking)
         t_filter, search_s = time.perf_counter(), self._search_s
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
                    and bool(observation.tactile))
@@ -285,6 +288,7 @@ class Estimator:
             flags.append("rival_mode")
             suspect = True
 
+        self.settled = not _UNSETTLED.intersection(flags)
         self.particles = result.particles
         est = result.estimate
         covariance = result.spread.covariance
@@ -315,7 +319,7 @@ class Estimator:
             timings={"masking_s": t_masks - t_step, "search_s": search_s, "filter_s": t_filter - t_masks - search_s,
                      "checks_s": checks_s, "diagnostics_s": t_end - t_filter - checks_s,
                      "likelihood_s": likelihood.seconds, "likelihood_calls": likelihood.calls,
-                     "poses_scored": likelihood.evaluated, "step_s": t_end - t_step},
+                     "poses_scored": likelihood.evaluated, "step_s": t_end - t_step, "tracked": tracking},
         )
 
     def resume_after(self, last: FrameEstimate) -> None:
@@ -323,13 +327,15 @@ class Estimator:
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
         same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
         the rival no check has ruled out yet (``FrameEstimate.rival``), the latest profile widths
-        (``FrameEstimate.profile_sigma``) and the contact state (``search.check_at_contact``)."""
+        (``FrameEstimate.profile_sigma``), the contact state (``search.check_at_contact``) and whether
+        it left the belief settled (``filter.tracking_particles``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
         self.unpinned = tuple(last.unpinned)
         self.rival = last.rival
         self.profile_sigma = last.profile_sigma
         self.in_contact = bool(last.contact)
+        self.settled = not _UNSETTLED.intersection(last.flags)
 
     def remember(self, frame: Frame) -> None:
         """Keep ``frame`` as one of the mode check's earlier frames (``search.mode_history_frames``,
@@ -390,18 +396,23 @@ class Estimator:
                 and spread.rotation_rms_rad < np.radians(m.converged_rotation_deg))
 
     def _assimilate(self, ps: ParticleSet, first: bool, in_contact: bool, has_evidence: bool,
-                    likelihood: Likelihood) -> StepResult:
+                    likelihood: Likelihood, tracking: bool = False) -> StepResult:
         """The frame's filter update: a plain prediction when the frame holds no evidence
         (no sensor observed, no contact term); else the prediction (the first frame: a global
         search of the grasp prior) and the observation (``ParticleFilter.assimilate``), then,
         with the refinement, the re-search check (``_recheck``). ``in_contact``: the log's
-        contact signal, for the motion model (Algorithm 4)."""
+        contact signal, for the motion model (Algorithm 4). The refinement returns
+        ``filter.tracking_particles`` particles on a frame ``step`` found ``tracking``, else
+        ``filter.num_particles``; the first frame's global search and a frame without evidence
+        keep the count they have."""
         if not has_evidence:
             return self.pf.assimilate(self.pf.predict(ps, in_contact), lambda T: np.zeros(len(T)), 0)
         bounded = self.prior.bounded(likelihood)
         iterations = self.cfg.filter.refine_iterations * (self.cfg.search.first_frame_iteration_factor if first else 1)
         predicted = self._global_search(bounded) if first else self.pf.predict(ps, in_contact)
-        result = self.pf.assimilate(predicted, likelihood, iterations)
+        n_out = None if iterations == 0 else (self.cfg.filter.tracking_particles if tracking
+                                              else self.cfg.filter.num_particles)
+        result = self.pf.assimilate(predicted, likelihood, iterations, n_out)
         return self._recheck(result, first, likelihood, bounded) if iterations > 0 else result
 
     def _global_search(self, bounded: Callable[[np.ndarray], np.ndarray]) -> ParticleSet:
@@ -692,6 +703,11 @@ class Estimator:
         out = cross_entropy_search(poses, bounded, self.rng, **joint)
         self._search_s += time.perf_counter() - t0
         return out
+
+
+# flags after which the next frame keeps filter.num_particles, never the tracking mode's fewer
+_UNSETTLED = frozenset({"degenerate_weights", "ess_collapsed", "tempering_forced", "estimate_jump", "re_searched",
+                        "mode_switch", "rival_mode", "sensor_downweighted", "suspect_estimate"})
 
 
 def _gain(likelihoods: list[Callable[[np.ndarray], np.ndarray]], T_ee_object: np.ndarray,

@@ -170,11 +170,15 @@ class ParticleFilter:
             finish(d, list(result.flags) + ["estimate_jump"])
         return result
 
-    def assimilate(self, predicted: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int) -> StepResult:
+    def assimilate(self, predicted: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int,
+                   n_out: int | None = None) -> StepResult:
         """The frame's observation applied to the ``predicted`` particles: ``update``
-        (``iterations`` = 0) or ``refine`` with that many iterations."""
+        (``iterations`` = 0) or ``refine`` with that many iterations, returning ``n_out``
+        particles (default as many as predicted; ``refine`` only)."""
         if iterations > 0:
-            return self.refine(predicted, log_likelihood_fn, iterations)
+            return self.refine(predicted, log_likelihood_fn, iterations, n_out=n_out)
+        if n_out is not None and n_out != len(predicted):
+            raise ValueError("the single importance update keeps the particle count: n_out needs iterations > 0")
         return self.update(predicted, log_likelihood_fn)
 
     def update(self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn) -> StepResult:
@@ -223,12 +227,13 @@ class ParticleFilter:
         log_likelihood_fn: LogLikelihoodFn,
         iterations: int | None = None,
         shrink: float | None = None,
+        n_out: int | None = None,
     ) -> StepResult:
         """Annealed update of the *predicted* ``particles`` with ``iterations`` (default
-        ``self.refine_iterations``) tempering stages and Metropolis sweeps: see
-        ``smc.TemperedRefinement``."""
+        ``self.refine_iterations``) tempering stages and Metropolis sweeps, into ``n_out``
+        particles (default as many): see ``smc.TemperedRefinement``."""
         return self.smc(particles, log_likelihood_fn, self.refine_iterations if iterations is None else iterations,
-                        shrink)
+                        shrink, n_out)
 
     # -- checks -----------------------------------------------------------------------
 

@@ -242,6 +242,7 @@ class TemperedRefinement:
         log_likelihood_fn: LogLikelihoodFn,
         iterations: int,
         shrink: float | None = None,
+        n_out: int | None = None,
     ) -> StepResult:
         """Annealed update: the same posterior as ``update``, reached by a tempered SMC
         sampler with Metropolis moves (Del Moral, Doucet & Jasra 2006) that moves the
@@ -279,6 +280,9 @@ class TemperedRefinement:
         ESS-driven schedule shrinks roughly geometrically, down to the floor. Cost:
         ``iterations + 1`` calls of ``log_likelihood_fn`` on N particles.
 
+        ``n_out``: the number of particles drawn from ``p^`` in step 1 and returned (default
+        ``len(particles)``); the kernel density keeps every predicted particle as a centre.
+
         Limits: the tangent chart is centred on the predicted particles' mean (beliefs
         must lie well within ±180° of it), and the likelihood must rise towards its peak
         from where the prior puts particles: a peak much narrower than the prior with a
@@ -289,9 +293,9 @@ class TemperedRefinement:
             raise ValueError(f"refine needs iterations >= 1, got {iterations!r}")
         shrink = self.shrink if shrink is None else float(shrink)
         check_shrink(shrink)
-        result = self._refine(particles, log_likelihood_fn, iterations, shrink)
+        result = self._refine(particles, log_likelihood_fn, iterations, shrink, n_out)
         if "ess_collapsed" in result.flags and self.collapse_retry_iterations > 0:
-            return self.redo_collapsed(particles, log_likelihood_fn, result, iterations, shrink)
+            return self.redo_collapsed(particles, log_likelihood_fn, result, iterations, shrink, n_out)
         return result
 
     def redo_collapsed(
@@ -301,12 +305,13 @@ class TemperedRefinement:
         collapsed: StepResult,
         iterations: int,
         shrink: float | None,
+        n_out: int | None = None,
     ) -> StepResult:
         """Recovery from an ESS collapse: the frame again from the same predicted
         ``particles`` by ``refine`` with more, hence smaller, tempering stages, each
         followed by Metropolis moves (see ``collapse_retry_iterations``)."""
         k = max(self.collapse_retry_iterations, 3 * iterations)
-        redo = self._refine(particles, log_likelihood_fn, k, self.shrink if shrink is None else shrink)
+        redo = self._refine(particles, log_likelihood_fn, k, self.shrink if shrink is None else shrink, n_out)
         d = redo.diagnostics
         flags = [f for f in d["flags"] if f != "ess_collapsed"]
         d["collapse_retry"] = {
@@ -321,10 +326,11 @@ class TemperedRefinement:
         return redo
 
     def _refine(
-        self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int, shrink: float
+        self, particles: ParticleSet, log_likelihood_fn: LogLikelihoodFn, iterations: int, shrink: float,
+        n_out: int | None = None,
     ) -> StepResult:
         """``refine`` without the collapse recovery."""
-        rng, n = self.rng, len(particles)
+        rng, n = self.rng, len(particles) if n_out is None else int(n_out)
         scheme = get_scheme(self.resampling)
         floor_var = np.array([self.floor_translation_m] * 3 + [self.floor_rotation_rad] * 3) ** 2
 

@@ -98,7 +98,8 @@ def stage_timing(results, startup_s: float) -> dict:
     refinement, ``checks_s`` the mode and rival checks (their searches and refinements),
     ``diagnostics_s`` the rest: the evidence diagnostic, the sensor watch, the jump check (the
     five add up to ``step_s``, the whole step), ``likelihood_s`` all scoring),
-    the likelihood calls and poses scored; ``log_s`` the time the frames span and
+    the likelihood calls and poses scored; ``tracked_frames`` the later frames the tracking mode
+    took (``filter.tracking_particles``); ``log_s`` the time the frames span and
     ``wall_over_log`` the frames' wall time (reading and steps, after the first) over it."""
     rows = [r.timings for r in results if r.timings]
     if not rows:
@@ -120,6 +121,7 @@ def stage_timing(results, startup_s: float) -> dict:
         "first_frame": stats(rows[:1]),
         "later_frames_mean": stats(later) if later else {},
         "frames": len(rows),
+        "tracked_frames": sum(bool(t.get("tracked", False)) for t in later),
         "log_s": round(log_s, 3),
         "wall_over_log": round(later_wall / (interval_s * len(later)), 3) if later and interval_s > 0 else None,
     }

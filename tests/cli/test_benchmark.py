@@ -39,6 +39,7 @@ def test_benchmark_speed_on_a_log_times_every_stage():
     prof = json.loads(proc.stdout)
     assert prof["frames_processed"] == 3 and prof["frames"] == 3
     assert prof["log_s"] == 0.2 and prof["startup_s"] > 0 and prof["wall_over_log"] > 0
+    assert prof["tracked_frames"] == 0  # the tracking mode (filter.tracking_particles) is off by default
     stages = ("masking_s", "search_s", "filter_s", "checks_s", "diagnostics_s")
     for part in (prof["first_frame"], prof["later_frames_mean"]):
         assert all(part[k] > 0 for k in ("read_s", *stages, "likelihood_s", "step_s")), part

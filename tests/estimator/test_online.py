@@ -316,3 +316,35 @@ def test_a_mode_check_rules_out_the_standing_rival_by_searching_where_it_now_is(
     assert estimator._rules_out(ahead, ahead, T_estimate, False, 19) is False
     assert estimator._rules_out(ahead, ahead, T_estimate, True, 19) is True
     assert RivalMode(9, 3.0, 0.0, 0.5, offset) == RivalMode(9, 3.0, 0.0, 0.5)  # the pose is not compared
+
+
+def test_the_tracking_mode_refines_settled_frames_into_fewer_particles():
+    """``filter.tracking_particles``: a later frame that is no check frame, keeps the previous
+    frame's contact state and follows a frame without an unsettling flag ends with the tracking
+    count; the first frame, the check frames and the frame after each of them end with
+    ``num_particles`` again. Off (0), every frame keeps ``num_particles``."""
+    base = load_config(ROOT / "configs" / "cube.yaml")
+    counts, tracked, flags, contact = {}, {}, [], []
+    for k in (0, 50):
+        cfg = replace(base, filter=replace(base.filter, num_particles=120, tracking_particles=k),
+                      search=replace(base.search, rival_every=4))
+        with McapLog(ROOT / "sample_logs" / "cube.mcap") as log:
+            reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+            estimator = Estimator.from_config(cfg, frame_pose=lambda name, t, tf=reader.tf: tf.lookup("world", name, t))
+            counts[k], tracked[k] = [], []
+            for frame, _ in zip(reader, range(10)):
+                r = estimator.step(frame)
+                counts[k].append(len(estimator.particles))
+                tracked[k].append(r.timings["tracked"])
+                if k:
+                    flags.append(set(r.flags))
+                    contact.append(frame.contact)
+    assert counts[0] == [120] * 10 and not any(tracked[0])
+    expected = [False]
+    for i in range(1, 10):
+        unsettled = flags[i - 1] & {"re_searched", "mode_switch", "rival_mode", "suspect_estimate", "ess_collapsed",
+                                    "tempering_forced", "estimate_jump", "sensor_downweighted", "degenerate_weights"}
+        expected.append((i + 1) % 4 != 0 and not unsettled and contact[i] == contact[i - 1])
+    assert tracked[50] == expected
+    assert counts[50] == [50 if t else 120 for t in tracked[50]]
+    assert sum(tracked[50]) >= 4 and not tracked[50][3] and not tracked[50][7]

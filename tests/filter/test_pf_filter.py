@@ -108,6 +108,37 @@ def test_refine_matches_the_analytic_gaussian_posterior():
     assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
 
 
+def test_refine_into_fewer_particles_samples_the_same_posterior():
+    """``n_out`` (the estimator's tracking mode): 1000 predicted particles refined into 300
+    have the exact posterior's spread and mean, as the full count does; the single update
+    cannot change the count."""
+    sp = np.array([1e-3] * 3 + [np.deg2rad(3.0)] * 3)
+    sl = np.array([3e-4] * 3 + [np.deg2rad(1.0)] * 3)
+    y = np.array([5e-4, -3e-4, 2e-4, np.deg2rad(2.0), 0.0, np.deg2rad(-1.0)])
+    post_sd = 1.0 / np.sqrt(sp**-2 + sl**-2)
+    post_mean = y * sp**2 / (sp**2 + sl**2)
+
+    def log_likelihood(T):
+        return -0.5 * np.sum(((_tangent(T, T_NOMINAL) - y) / sl) ** 2, axis=1)
+
+    sds, means = [], []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng)
+        result = ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, log_likelihood, iterations=8, n_out=300)
+        assert len(result.particles) == 300 and len(result.log_likelihoods) == 300
+        assert result.diagnostics["evaluated_poses"] == 9 * 300
+        xi = _tangent(result.particles.poses, T_NOMINAL)
+        sds.append(xi.std(axis=0))
+        means.append(xi.mean(axis=0))
+    ratio = np.mean(sds, axis=0) / post_sd
+    assert np.all((ratio > 0.88) & (ratio < 1.12)), ratio
+    assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
+    pf = ParticleFilter(STILL, "systematic", 0.5, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="keeps the particle count: n_out needs iterations > 0"):
+        pf.assimilate(prior, log_likelihood, 0, n_out=300)
+
+
 def test_refine_hands_back_the_log_likelihoods_of_its_particles():
     """The refined particles carry the log-likelihoods the sampler computed for them, equal
     to a fresh evaluation (the estimator's re-search check reads them instead of scoring
