@@ -225,7 +225,7 @@ class Estimator:
         self.last_likelihood = likelihood  # for diagnostics: the frame's likelihood at any pose, e.g. the truth's
         checks_s = time.perf_counter() - t_filter  # the mode check's searches and refinements; the rival check's below
         counts = {"invalid_log_likelihood": likelihood.invalid, "evaluated_poses": likelihood.evaluated}
-        warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, self.cfg.filter.num_particles)
+        warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, len(result.particles))
         flags = list(result.flags)
         if switch is not None:
             warnings.append(switch.record)
