@@ -81,17 +81,23 @@ def test_update_estimates_before_resampling():
     assert result.ess == pytest.approx(weighted.ess())
 
 
-def test_refine_matches_the_analytic_gaussian_posterior():
-    """Tempering uses the observation once: the refined particles have the spread of the
-    exact posterior, not the ~1/sqrt(k) narrower one of k repeated updates."""
+def _gaussian_posterior():
+    """A Gaussian prior about ``T_NOMINAL`` and a Gaussian likelihood in tangent coordinates:
+    the prior's std (6,), the exact posterior's std and mean (6,), and the log-likelihood."""
     sp = np.array([1e-3] * 3 + [np.deg2rad(3.0)] * 3)  # prior std
     sl = np.array([3e-4] * 3 + [np.deg2rad(1.0)] * 3)  # likelihood std
     y = np.array([5e-4, -3e-4, 2e-4, np.deg2rad(2.0), 0.0, np.deg2rad(-1.0)])
-    post_sd = 1.0 / np.sqrt(sp**-2 + sl**-2)
-    post_mean = y * sp**2 / (sp**2 + sl**2)
 
     def log_likelihood(T):
         return -0.5 * np.sum(((_tangent(T, T_NOMINAL) - y) / sl) ** 2, axis=1)
+
+    return sp, 1.0 / np.sqrt(sp**-2 + sl**-2), y * sp**2 / (sp**2 + sl**2), log_likelihood
+
+
+def test_refine_matches_the_analytic_gaussian_posterior():
+    """Tempering uses the observation once: the refined particles have the spread of the
+    exact posterior, not the ~1/sqrt(k) narrower one of k repeated updates."""
+    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
 
     sds, means = [], []
     for seed in range(4):
@@ -112,14 +118,7 @@ def test_refine_into_fewer_particles_samples_the_same_posterior():
     """``n_out`` (the estimator's tracking mode): 1000 predicted particles refined into 300
     have the exact posterior's spread and mean, as the full count does; the single update
     cannot change the count."""
-    sp = np.array([1e-3] * 3 + [np.deg2rad(3.0)] * 3)
-    sl = np.array([3e-4] * 3 + [np.deg2rad(1.0)] * 3)
-    y = np.array([5e-4, -3e-4, 2e-4, np.deg2rad(2.0), 0.0, np.deg2rad(-1.0)])
-    post_sd = 1.0 / np.sqrt(sp**-2 + sl**-2)
-    post_mean = y * sp**2 / (sp**2 + sl**2)
-
-    def log_likelihood(T):
-        return -0.5 * np.sum(((_tangent(T, T_NOMINAL) - y) / sl) ** 2, axis=1)
+    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
 
     sds, means = [], []
     for seed in range(8):
