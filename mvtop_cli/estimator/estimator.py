@@ -207,13 +207,15 @@ class Estimator:
         # evidence (eq. 8-9) only with the contact modality
         contact = self._evidence_contact(frame)
         due = self._check_due(frame.index, onset=bool(frame.contact) and not first and not self.in_contact)
-        tracking = (self.cfg.filter.tracking_particles > 0 and not first and not due and self.settled
-                    and bool(frame.contact) == self.in_contact)
+        same_contact = bool(frame.contact) == self.in_contact
         self.in_contact = bool(frame.contact)
         observation = self.observations.observe(frame, ps, self._converged(ps, first))
         t_masks = time.perf_counter()
         likelihood = Likelihood(self.cfg, self.scene, frame, observation, contact, self.consistency.weight_factor)
         has_evidence = bool(observation.sensors) or bool(contact)
+        f = self.cfg.filter
+        tracking = (f.tracking_particles > 0 and f.refine_iterations > 0 and has_evidence and not first and not due
+                    and self.settled and same_contact)
         result = self._assimilate(ps, first, bool(frame.contact), has_evidence, likelihood, tracking)
         t_filter, search_s = time.perf_counter(), self._search_s
         checked = (self.cfg.search.mode_check and due and bool(observation.cameras)
@@ -410,8 +412,8 @@ class Estimator:
         bounded = self.prior.bounded(likelihood)
         iterations = self.cfg.filter.refine_iterations * (self.cfg.search.first_frame_iteration_factor if first else 1)
         predicted = self._global_search(bounded) if first else self.pf.predict(ps, in_contact)
-        n_out = None if iterations == 0 else (self.cfg.filter.tracking_particles if tracking
-                                              else self.cfg.filter.num_particles)
+        n_out = (self.cfg.filter.tracking_particles if tracking
+                 else None if iterations == 0 else self.cfg.filter.num_particles)
         result = self.pf.assimilate(predicted, likelihood, iterations, n_out)
         return self._recheck(result, first, likelihood, bounded) if iterations > 0 else result
 
