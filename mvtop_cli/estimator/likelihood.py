@@ -52,10 +52,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..bitmasks import iou_matrix
 from ..config import Config
 from ..contact.likelihood import log_contact_likelihood, log_penetration_likelihood
 from ..filter.result import valid_log_likelihood
-from ..masking.selection import iou_matrix
 from ..records import Frame
 from .observation import Observation
 from .scene import OBJECT_ID, SceneModel

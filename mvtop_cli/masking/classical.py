@@ -38,9 +38,9 @@ import cv2
 import numpy as np
 from numba import njit
 
+from mvtop_cli.bitmasks import mask_nms
 from mvtop_cli.errors import ConfigError
 from mvtop_cli.masking.base import roi_window
-from mvtop_cli.masking.onnx_common import mask_nms
 
 # GrabCut labels (cv2.GC_*), named here for readability.
 _BGD, _FGD, _PR_BGD, _PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD

@@ -307,52 +307,6 @@ class ResizeFrame:
 # -- mask utilities ---------------------------------------------------------------------
 
 
-def _packed(masks: np.ndarray) -> np.ndarray:
-    """(N, h, w) bool -> (N, words) uint64 bit-packed rows."""
-    bits = np.packbits(np.ascontiguousarray(masks, dtype=bool).reshape(len(masks), -1), axis=1)
-    pad = (-bits.shape[1]) % 8
-    if pad:
-        bits = np.pad(bits, ((0, 0), (0, pad)))
-    return bits.view(np.uint64)
-
-
-def mask_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU (N, M) float64 of masks ``a`` (N, h, w) and ``b`` (M, h, w) (0 when both empty)."""
-    A, B = _packed(a), _packed(b)
-    area_a = np.bitwise_count(A).sum(axis=1, dtype=np.int64)
-    area_b = np.bitwise_count(B).sum(axis=1, dtype=np.int64)
-    inter = np.zeros((len(A), len(B)), np.int64)
-    for j, row in enumerate(B):
-        inter[:, j] = np.bitwise_count(A & row).sum(axis=1, dtype=np.int64)
-    union = area_a[:, None] + area_b[None, :] - inter
-    return np.where(union > 0, inter / np.maximum(union, 1), 0.0)
-
-
-def mask_nms(masks: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
-    """Greedy non-maximum suppression by mask IoU.
-
-    masks : (N, h, w) bool; scores : (N,) float
-    Returns the indices (K,) int64 of the kept masks, best score first: a mask is dropped
-    when its IoU with a better-scored kept mask exceeds ``iou_threshold`` (ties keep the
-    earlier mask).
-    """
-    scores = np.asarray(scores, np.float64)
-    if len(scores) == 0:
-        return np.zeros(0, np.int64)
-    order = np.argsort(-scores, kind="stable")
-    words = _packed(np.asarray(masks)[order])
-    areas = np.bitwise_count(words).sum(axis=1, dtype=np.int64)
-    kept: list[int] = []
-    for i in range(len(order)):
-        if kept:
-            inter = np.bitwise_count(words[kept] & words[i]).sum(axis=1, dtype=np.int64)
-            union = np.maximum(areas[kept] + areas[i] - inter, 1)
-            if np.max(inter / union) > iou_threshold:
-                continue
-        kept.append(i)
-    return order[np.asarray(kept, np.int64)]
-
-
 def stability_score(logits: np.ndarray, threshold: float, offset: float) -> np.ndarray:
     """SAM's stability score of mask logits (..., h, w): the IoU of the masks thresholded at
     ``threshold + offset`` and ``threshold - offset`` (the first lies inside the second);

@@ -32,6 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from mvtop_cli.bitmasks import iou_matrix
 from mvtop_cli.errors import ConfigError
 from mvtop_cli.masking.base import MaskContext, register_backend, roi_window, split_prompt
 from mvtop_cli.masking.onnx_common import (
@@ -41,7 +42,6 @@ from mvtop_cli.masking.onnx_common import (
     check_image,
     check_ranges,
     image_key,
-    mask_iou,
     options_from_mapping,
 )
 
@@ -289,7 +289,7 @@ class InstanceOnnxBackend:
             return np.zeros(shape, bool)
         stack = np.stack(props)
         if prompt_mask is not None:
-            match = mask_iou(stack, prompt_mask[None])[:, 0]
+            match = iou_matrix(stack, prompt_mask[None], empty_score=0.0)[:, 0]
         else:
             cols, rows = np.rint(points[:, 0]).astype(int), np.rint(points[:, 1]).astype(int)
             ok = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])

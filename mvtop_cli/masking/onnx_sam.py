@@ -37,6 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from mvtop_cli.bitmasks import mask_nms
 from mvtop_cli.errors import ConfigError
 from mvtop_cli.masking.base import MaskContext, register_backend, roi_window, split_prompt
 from mvtop_cli.masking.onnx_common import (
@@ -46,7 +47,6 @@ from mvtop_cli.masking.onnx_common import (
     check_image,
     check_ranges,
     image_key,
-    mask_nms,
     options_from_mapping,
     paste,
     remove_small_regions,

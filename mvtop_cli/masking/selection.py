@@ -22,9 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Rendered masks are AND-ed with the proposals this many poses at a time, bounding the
-# (chunk, M, words) temporary to a few MB for 100x100-pixel masks.
-_POSE_CHUNK = 64
+from mvtop_cli.bitmasks import iou_matrix
 
 
 @dataclass(frozen=True)
@@ -48,50 +46,6 @@ class Selection:
     per_sensor_choice: dict[str, np.ndarray]
 
 
-def _pack(masks: np.ndarray) -> np.ndarray:
-    """(N, h, w) bool -> (N, words) uint64, the flattened masks packed 64 pixels a word."""
-    m = np.ascontiguousarray(masks, dtype=bool)
-    packed = np.packbits(m.reshape(m.shape[0], -1), axis=1)
-    pad = (-packed.shape[1]) % 8
-    if pad:
-        packed = np.pad(packed, ((0, 0), (0, pad)))
-    return packed.view(np.uint64)
-
-
-def iou_matrix(rendered: np.ndarray, proposals: np.ndarray, empty_score: float = 1.0) -> np.ndarray:
-    """IoU of every rendered mask with every proposal.
-
-    rendered : (P, h, w) bool
-    proposals : (M, h, w) bool
-    empty_score : IoU when both masks are empty (e.g. a tactile sensor proposing "no
-        contact" agrees with a pose that predicts none), as in ``render.iou``
-    Returns (P, M) float64 in [0, 1].
-
-    Masks are packed 64 pixels to a word and intersections counted with a popcount of the
-    AND, skipping words that no proposal touches. Unlike a float32 matrix product this is
-    exact for any size and does not depend on BLAS threads (which stall on a busy machine).
-    """
-    rendered = np.asarray(rendered)
-    proposals = np.asarray(proposals)
-    if rendered.ndim != 3 or proposals.ndim != 3 or rendered.shape[1:] != proposals.shape[1:]:
-        raise ValueError(
-            f"rendered {rendered.shape} and proposals {proposals.shape} must be (P, h, w) and (M, h, w)"
-        )
-    R = _pack(rendered)
-    Q = _pack(proposals)
-    area_r = np.bitwise_count(R).sum(axis=1, dtype=np.int64)
-    area_q = np.bitwise_count(Q).sum(axis=1, dtype=np.int64)
-    used = Q.any(axis=0)
-    R_used, Q_used = np.ascontiguousarray(R[:, used]), np.ascontiguousarray(Q[:, used])
-    inter = np.empty((R.shape[0], Q.shape[0]), dtype=np.int64)
-    for i in range(0, R.shape[0], _POSE_CHUNK):
-        block = R_used[i : i + _POSE_CHUNK, None, :] & Q_used[None, :, :]
-        inter[i : i + _POSE_CHUNK] = np.bitwise_count(block).sum(axis=2, dtype=np.int64)
-    union = (area_r[:, None] + area_q[None, :] - inter).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(union > 0, inter / union, float(empty_score))
-
-
 def select_masks(
     proposals: Mapping[str, Sequence[np.ndarray] | np.ndarray],
     rendered: Mapping[str, np.ndarray],
@@ -105,7 +59,7 @@ def select_masks(
     rendered : sensor -> (P, h, w) bool reference masks, one per candidate pose; every
         sensor has the same P
     weights : sensor -> importance weight (gamma_i / nu_j of eq. 2) for every rendered sensor
-    empty_score : IoU of an empty proposal with an empty render (see :func:`iou_matrix`)
+    empty_score : IoU of an empty proposal with an empty render (see ``bitmasks.iou_matrix``)
 
     Sensors in ``rendered`` without proposals contribute 0 and get ``None``.
     Raises ValueError on proposals for a sensor with no renders, a missing or negative

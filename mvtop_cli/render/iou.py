@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from mvtop_cli.render import _threads  # noqa: F401  (sets OMP_WAIT_POLICY before any kernel runs)
+from mvtop_cli import _threads  # noqa: F401  (sets OMP_WAIT_POLICY before any kernel runs)
 
 
 @njit(cache=True, parallel=True)

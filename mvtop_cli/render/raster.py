@@ -50,10 +50,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import get_num_threads, njit, prange, types
-from numba.extending import intrinsic
+from numba import get_num_threads, njit, prange
 
-from mvtop_cli.render import _threads  # noqa: F401  (sets OMP_WAIT_POLICY before any kernel runs)
+from mvtop_cli import _threads  # noqa: F401  (sets OMP_WAIT_POLICY before any kernel runs)
+from mvtop_cli.bitmasks import popcount
 
 # Rows of the per-vertex scratch array ``scr``: u, v, 1/z, 1 if z >= znear.
 _U, _V, _IZ, _OK = 0, 1, 2, 3
@@ -69,18 +69,6 @@ LIMIT_BLOCK = 16
 # Spans shorter than this [pixels] are set pixel by pixel in MODE_BITS.
 _SHORT_RUN = 16
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
-
-
-@intrinsic
-def _popcount(typingctx, x):
-    """Set bits of a uint64 (LLVM's ctpop: one instruction where the CPU has it)."""
-    if x != types.uint64:
-        return None
-
-    def codegen(context, builder, signature, args):
-        return builder.ctpop(args[0])
-
-    return types.uint64(types.uint64), codegen
 
 
 @njit(cache=True, inline="always")
@@ -510,8 +498,8 @@ def score_runs_kernel(
             if a < 0:  # pixels taken back by the limit: clear their marks
                 over[:] = 0
             for k in range(height * nw):
-                a += _popcount(bits[k])
-                b += _popcount(bits[k] & obs_bits[k])
+                a += popcount(bits[k])
+                b += popcount(bits[k] & obs_bits[k])
                 bits[k] = 0
             area[i] = a
             inter[i] = b

@@ -6,9 +6,10 @@ import numpy as np
 import onnx_models
 import pytest
 
+from mvtop_cli.bitmasks import iou_matrix
 from mvtop_cli.errors import ConfigError, ModelError
 from mvtop_cli.masking.base import MaskContext, PromptableMaskBackend, get_backend
-from mvtop_cli.masking.onnx_common import ResizeFrame, mask_iou, mask_nms, remove_small_regions, stability_score
+from mvtop_cli.masking.onnx_common import ResizeFrame, remove_small_regions, stability_score
 from mvtop_cli.masking.onnx_sam import SamOnnxBackend, SamOnnxOptions, grid_points, interior_points
 
 RED, GREEN, BACKGROUND = (255, 0, 0), (0, 255, 0), 40
@@ -113,7 +114,7 @@ def test_proposals_find_both_discs(models):
     props = backend(models).proposals(img)
     assert len(props) == 2
     assert all(p.shape == (480, 640) and p.dtype == bool for p in props)
-    found = mask_iou(np.stack(props), np.stack([mask_a, mask_b]))
+    found = iou_matrix(np.stack(props), np.stack([mask_a, mask_b]), empty_score=0.0)
     assert found.max(axis=0).min() > 0.97
     assert within_one_pixel(props[int(np.argmax(found[:, 0]))], mask_a)
 
@@ -276,14 +277,6 @@ def test_options_reject_unknown_and_bad_values(models):
 
 
 # -- helpers -------------------------------------------------------------------------------
-
-
-def test_mask_nms_keeps_best_of_overlapping():
-    a = disc((50, 50), (20, 20), 10)
-    a2 = disc((50, 50), (21, 20), 10)
-    c = disc((50, 50), (40, 40), 5)
-    keep = mask_nms(np.stack([a, c, a2]), np.array([0.8, 0.5, 0.9]), 0.7)
-    assert keep.tolist() == [2, 1]
 
 
 def test_stability_score_and_small_region_cleanup():
