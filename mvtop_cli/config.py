@@ -373,6 +373,12 @@ class SearchConfig:
     rival_translation_m: float = field(default=0.001, metadata=_rng(
         0.0, 1.0, doc="a rival lies farther than this from the estimate (modulo the part's symmetries) ..."))
     rival_rotation_deg: float = field(default=3.0, metadata=_rng(0.0, 180.0, doc="... or turned farther than this"))
+    disagreement_margin: float | None = field(default=8.0, metadata=_rng(
+        0.0, 1e6, doc="on the first frame, each sensor is left out in turn: when the others (and the contact term) "
+                      "prefer one of the search's poses beyond rival_translation_m / rival_rotation_deg to the "
+                      "estimate by at least this many nats, the sensors disagree and the estimate rests on that one "
+                      "sensor (warning and flag sensors_disagree, the covariance the grasp prior's spread for the "
+                      "run); null: no such check"))
     check_at_contact: bool = field(default=True, metadata={
         "doc": "with the contact modality, also run the rival and mode checks on the first frame of each contact (a "
                "frame in contact after one without, not the first frame): a part that a wrong mode stopped on the "

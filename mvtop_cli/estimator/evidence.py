@@ -183,3 +183,33 @@ def evidence_covariance(likelihood_sigma: np.ndarray, prior_sigma: np.ndarray, f
     sigma = np.where(np.isfinite(likelihood_sigma), factor * np.asarray(likelihood_sigma, dtype=np.float64),
                      prior_sigma)
     return np.diag(np.minimum(sigma, prior_sigma) ** 2)
+
+
+def leave_one_out(terms: np.ndarray, log_likelihood: np.ndarray, elsewhere: np.ndarray, terms_estimate: np.ndarray,
+                  ll_estimate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Whether one sensor alone holds the estimate against all the others: per sensor ``s``, the
+    best of the scored poses ``elsewhere`` (M,) bool (another mode than the estimate's) by the
+    log-likelihood without ``s``'s eq. 2 term, and by how many nats the other sensors (with the
+    contact term) prefer it to the estimate there.
+
+    terms, log_likelihood : (M, S) per-sensor eq. 2 terms [nats] and (M,) log-likelihoods of the
+        scored poses (``Likelihood.record``);
+    terms_estimate, ll_estimate : (S,) and the log-likelihood of the estimate.
+
+    Returns the gains (S,) [nats] (``-inf`` where no pose lies elsewhere or none scores finitely)
+    and the index (S,) into the scored poses of each sensor's best pose (-1 where none). When the
+    estimate is the joint peak, the left-out sensor loses at least the gain there: a large gain
+    means the sensors contradict each other, and the estimate rests on that one sensor's word."""
+    terms = np.asarray(terms, dtype=np.float64)
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    ok = np.asarray(elsewhere, dtype=bool) & np.isfinite(ll)
+    gains = np.full(terms.shape[1], -np.inf)
+    index = np.full(terms.shape[1], -1, dtype=np.int64)
+    if not ok.any():
+        return gains, index
+    rows = np.flatnonzero(ok)
+    others = ll[rows, None] - terms[rows]  # (m, S)
+    best = np.argmax(others, axis=0)
+    index = rows[best]
+    gains = others[best, np.arange(terms.shape[1])] - (ll_estimate - np.asarray(terms_estimate, dtype=np.float64))
+    return gains, index

@@ -239,6 +239,8 @@ class Likelihood:
         self.invalid = 0
         self.calls = 0
         self.seconds = 0.0  # wall time spent scoring (render + IoU + contact)
+        # while a list (``record``): every call's poses, per-sensor terms and log-likelihoods
+        self.tape: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def add_counts(self, other: Likelihood) -> None:
         """Count ``other``'s scored poses, invalid values, calls and time as this one's (a frame
@@ -331,11 +333,41 @@ class Likelihood:
             out[:, j] = (total - e.background_factor * edge.background * count) * e.spacing_px / 100.0
         return out
 
-    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
-        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4)."""
+    def sensor_terms(self, iou_t: np.ndarray, iou_v: np.ndarray) -> np.ndarray:
+        """Each observed sensor's eq. 2 term over the temperature (N, S) [nats], columns in
+        ``observation.sensors`` order, from the IoU tables (N, N_T) / (N, N_V) of ``ious``; an
+        undefined IoU counts 0, as in the score."""
+        ious = np.concatenate([np.asarray(iou_t, dtype=np.float64), np.asarray(iou_v, dtype=np.float64)], axis=1)
+        return np.nan_to_num(ious, nan=0.0) * np.concatenate([self.gamma, self.nu]) / self.cfg.filter.temperature
+
+    def record(self) -> None:
+        """Keep every pose scored from now on (``tape``): its per-sensor terms (``sensor_terms``)
+        and log-likelihood, e.g. for the first frame's leave-one-out check; ``stop`` ends it."""
+        self.tape = []
+
+    def stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """End ``record``: the poses (M, 4, 4), sensor terms (M, S) and log-likelihoods (M,)
+        scored since, or None when nothing was."""
+        tape, self.tape = self.tape, None
+        if not tape:
+            return None
+        poses, terms, ll = zip(*tape)
+        return np.concatenate(poses), np.concatenate(terms), np.concatenate(ll)
+
+    def scored(self, T_ee_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4) and their per-sensor terms
+        (N, S) [nats] (``sensor_terms``); kept on the ``tape`` while recording."""
         t0 = time.perf_counter()
         iou_t, iou_v = self.ious(T_ee_object)
-        return self.log_likelihood(T_ee_object, iou_t, iou_v, self.gamma, self.nu, t0)
+        ll = self.log_likelihood(T_ee_object, iou_t, iou_v, self.gamma, self.nu, t0)
+        terms = self.sensor_terms(iou_t, iou_v)
+        if self.tape is not None:
+            self.tape.append((np.array(T_ee_object, dtype=np.float64), terms, ll))
+        return ll, terms
+
+    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4) (``scored``)."""
+        return self.scored(T_ee_object)[0]
 
     def log_likelihood(self, T_ee_object: np.ndarray, iou_t: np.ndarray, iou_v: np.ndarray, gamma: np.ndarray,
                        nu: np.ndarray, t0: float) -> np.ndarray:

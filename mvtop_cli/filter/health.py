@@ -31,6 +31,8 @@ WARNING_KINDS: dict[str, str] = {
     "suspect_estimate": "in many frames the evidence did not pin the estimate on some axis, or another pose explained "
                         "it as well: it may be far off",
     "rival_mode": "a fresh search found another pose that explains the frame about as well as the estimate",
+    "sensors_disagree": "the sensors contradict each other: without one of them the others prefer another pose by many "
+                        "nats, so the estimate rests on that sensor alone",
     "mode_switch": "with each pose choosing its own camera masks, another pose explained the frame far better: the "
                    "frame was redone from it",
     "mode_held": "with each pose choosing its own camera masks, another pose explained the frame far better, but the "
@@ -268,7 +270,10 @@ class RivalMode:
     ``T_estimate_rival`` (4, 4), when known, is that pose in the estimate's object frame, so a
     later check can score the same hypothesis where the estimate has moved to. ``held``: the
     mode check's belief-free evidence put it ahead of the estimate by more than
-    ``search.mode_margin`` and only the earlier frames held the switch back (``mode_held``)."""
+    ``search.mode_margin`` and only the earlier frames held the switch back (``mode_held``).
+    ``sensor``: the sensors disagree (``search.disagreement_margin``): without that sensor's
+    term the others prefer this pose to the estimate by ``others_gain`` nats, so the estimate
+    rests on that one sensor's word against theirs (warning ``sensors_disagree``)."""
 
     frame: int
     translation_mm: float
@@ -276,22 +281,30 @@ class RivalMode:
     nats_below: float
     T_estimate_rival: np.ndarray | None = field(default=None, compare=False, repr=False)
     held: bool = False
+    sensor: str | None = None
+    others_gain: float | None = None
 
     def warning(self, scored: str = "") -> dict:
-        """The frame's ``rival_mode`` warning record; ``scored`` opens its sentence with how the
-        poses were scored when not by the frame's likelihood (the mode check's terms)."""
+        """The frame's ``rival_mode`` (with ``sensor``: ``sensors_disagree``) warning record;
+        ``scored`` opens its sentence with how the poses were scored when not by the frame's
+        likelihood (the mode check's terms)."""
+        until = "until a later check rules it out" if self.sensor is None else "for the rest of the run"
         return warning(
-            self.frame, "rival_mode",
+            self.frame, "rival_mode" if self.sensor is None else "sensors_disagree",
             f"{scored}another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate "
-            f"explains the sensors {self.comparison}: until a later check rules it out, the covariance is the grasp "
-            "prior's spread about the estimate",
+            f"explains the sensors {self.comparison}: {until}, the covariance is the grasp prior's spread about the "
+            "estimate",
             translation_mm=self.translation_mm, rotation_deg=self.rotation_deg, nats_below=self.nats_below,
-            ratio=-self.nats_below,
+            ratio=-self.nats_below if self.sensor is None else self.others_gain,
+            **({} if self.sensor is None else {"sensor": self.sensor, "others_gain": self.others_gain}),
         )
 
     @property
     def comparison(self) -> str:
         """How the rival scores against the estimate, in words."""
+        if self.sensor is not None:
+            return (f"other than {self.sensor!r} {self.others_gain:.1f} nats better than the estimate does "
+                    f"({self.sensor!r} alone holds the estimate there)")
         if self.nats_below >= 0:
             return f"within {self.nats_below:.1f} nats of it"
         return f"{-self.nats_below:.1f} nats better than it"
@@ -321,8 +334,9 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
             None, "suspect_estimate",
             f"at frame {rival.frame} another pose {rival.translation_mm:.2f} mm / {rival.rotation_deg:.2f} deg from "
             f"the estimate explained the sensors {rival.comparison}, and no later check ruled it out: the "
-            "estimate may be either; its covariance is the grasp prior's spread about it (flag rival_mode); check it "
-            "against another measurement before relying on it",
+            "estimate may be either; its covariance is the grasp prior's spread about it "
+            f"(flag {'rival_mode' if rival.sensor is None else 'sensors_disagree'}); check it against another "
+            "measurement before relying on it",
             rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,
         )
     fraction = open_frames / len(pinned)

@@ -36,7 +36,8 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         warnings.extend(r.warnings)
         agreement.append((r.index, getattr(r, "sensor_iou", {})))
     suspect = suspect_warning([r.evidence.pinned for r in results if r.evidence is not None],
-                              cfg.output.suspect_unpinned_fraction, getattr(last, "rival", None))
+                              cfg.output.suspect_unpinned_fraction,
+                              getattr(last, "rival", None) or getattr(last, "disagreement", None))
     if suspect is not None:
         warnings.append(suspect)
     out = {
@@ -78,13 +79,16 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
     """summary.json's ``evidence``: the final frame's diagnostic in full (per-sensor IoU at the
     estimate, the likelihood's width per axis, ``estimator/evidence.py``) and, per frame, the
     worst sensor IoU and the widest translation [m] / rotation [deg] width (null: no evidence,
-    or a flat likelihood)."""
+    or a flat likelihood); and the first frame's leave-one-out gains per sensor [nats]
+    (``search.disagreement_margin``; null: the check did not run)."""
     num = finite_or_none
     frames = [[r.index, num(r.evidence.min_iou), num(r.evidence.sigma_translation_m),
                num(r.evidence.sigma_rotation_deg)] for r in results if r.evidence is not None]
     final = next((r.evidence.as_dict() for r in reversed(results) if r.evidence is not None), None)
+    checked = next((r for r in results if getattr(r, "leave_one_out", None) is not None), None)
+    left_out = None if checked is None else {"frame": checked.index, "others_gain_nats": checked.leave_one_out}
     return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg"],
-                                          "rows": frames}}
+                                          "rows": frames}, "leave_one_out": left_out}
 
 
 STAGES = ("read_s", "masking_s", "search_s", "filter_s", "checks_s", "diagnostics_s", "likelihood_s", "step_s")

@@ -189,8 +189,10 @@ def test_a_switch_the_earlier_frames_contradict_is_not_made(scene, monkeypatch):
     wrong mode it redoes without them (the previous test). A frame in contact, or of a log
     without a contact signal, empties them: the part may have slipped in the grasp."""
     log_path, cfg = scene
+    # the first frame's leave-one-out check flags this wrong mode from frame 0 on (the next test);
+    # off here, so that the frames before the check report the filter's own covariance
     cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt="belief", belief_band_px=0),
-                  search=replace(cfg.search, rival_every=4, mode_check=True))
+                  search=replace(cfg.search, rival_every=4, mode_check=True, disagreement_margin=None))
     plain, _ = _steps(log_path, replace(cfg, search=replace(cfg.search, mode_check=False)), 3)
     held = plain[2][0].T_ee_object  # the wrong mode, as the estimate stands before the check
 
@@ -225,3 +227,24 @@ def test_a_switch_the_earlier_frames_contradict_is_not_made(scene, monkeypatch):
     estimator.remember(replace(frame, contact=False))
     estimator.remember(replace(frame, contact=None))
     assert len(estimator.history) == 0
+
+
+def test_the_first_frames_wrong_mode_is_flagged_by_the_sensor_it_outvotes(scene):
+    """The same masks with the leave-one-out check on (``search.disagreement_margin``, the
+    default): the first frame settles in the wrong mode, which the front camera's mask agrees
+    with; without that camera the others (the pads among them) prefer a pose nearer the truth by
+    far more than the margin, so the frame names the camera and reports the grasp prior's spread."""
+    log_path, cfg = scene
+    cfg = replace(cfg, masking=replace(cfg.masking, grabcut_prompt="belief", belief_band_px=0),
+                  search=replace(cfg.search, mode_check=False))
+    assert cfg.search.disagreement_margin is not None
+    run, estimator = _steps(log_path, cfg, 1)
+    (first, T_gt, _), = run
+    assert _errors(first, T_gt)[1] > 10.0  # the wrong mode
+    (record,) = [w for w in first.warnings if w["kind"] == "sensors_disagree"]
+    assert record["others_gain"] >= cfg.search.disagreement_margin
+    assert "sensors_disagree" in first.flags
+    assert record["sensor"] == "front"
+    assert np.all(np.diag(first.covariance) >= estimator.prior.sigma ** 2)
+    others = first.T_ee_object @ first.disagreement.T_estimate_rival
+    assert _errors(replace(first, T_ee_object=others), T_gt)[1] < 0.5 * _errors(first, T_gt)[1]

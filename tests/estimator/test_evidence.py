@@ -240,3 +240,26 @@ def test_the_profile_widens_the_reported_covariance_from_the_check_frame_on_and_
         base.output, evidence_profile=True)))
     resumed.resume_after(dataclasses.replace(on[10], evidence=None))
     np.testing.assert_array_equal(resumed.profile_sigma, on[9].evidence.profile_sigma)
+
+
+def test_leave_one_out_finds_the_pose_all_sensors_but_one_prefer():
+    """Three sensors, four scored poses: sensors 1 and 2 prefer pose 3 to the estimate by 6 nats
+    each, sensor 0 alone prefers the estimate by 20; poses 0 and 1 lie in the estimate's mode
+    and are not candidates."""
+    from mvtop_cli.estimator.evidence import leave_one_out
+
+    terms_est = np.array([30.0, 10.0, 10.0])
+    terms = np.array([[30.0, 10.0, 10.0],   # the estimate's mode
+                      [29.0, 30.0, 30.0],   # better for everyone, but in the estimate's mode
+                      [10.0, 11.0, 11.0],
+                      [10.0, 16.0, 16.0]])
+    ll = terms.sum(axis=1) - 1.0  # plus a contact term of -1 nat everywhere
+    gains, rows = leave_one_out(terms, ll, np.array([False, False, True, True]), terms_est, terms_est.sum() - 1.0)
+    np.testing.assert_allclose(gains, [12.0, -14.0, -14.0])  # without 0: 32 - 20; without 1 or 2: 25 - 39
+    np.testing.assert_array_equal(rows, [3, 3, 3])
+    none, where = leave_one_out(terms, ll, np.zeros(4, bool), terms_est, terms_est.sum() - 1.0)
+    assert np.all(np.isneginf(none)) and np.all(where == -1)
+    ll[3] = -np.inf  # a pose outside what the likelihood allows is no candidate
+    gains, rows = leave_one_out(terms, ll, np.array([False, False, True, True]), terms_est, terms_est.sum() - 1.0)
+    np.testing.assert_allclose(gains, [2.0, -19.0, -19.0])  # without 0: 22 - 20; without 1 or 2: 20 - 39
+    np.testing.assert_array_equal(rows, [2, 2, 2])

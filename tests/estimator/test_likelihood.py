@@ -168,3 +168,27 @@ def test_a_camera_whose_observed_mask_is_small_weighs_in_by_its_area():
     expected = iou_v @ (scaled.nu - default.nu) / cfg.filter.temperature
     np.testing.assert_allclose(scaled(poses) - default(poses), expected, rtol=0, atol=1e-9)
     assert np.ptp(iou_v @ (scaled.nu - default.nu)) > 0  # the change is not a constant
+
+
+def test_the_tape_keeps_every_scored_pose_with_terms_that_add_up_to_the_score():
+    """While recording, each call's poses, per-sensor eq. 2 terms and log-likelihoods are kept;
+    the terms are each sensor's weighted IoU over the temperature, so with the contact term taken
+    off they sum to the log-likelihood. ``stop`` ends the tape; nothing is kept after it."""
+    likelihood, T_gt, _ = _frame_likelihood("cube")
+    likelihood.contact = False  # the sum below is the eq. 2 part alone
+    poses = init_from_prior(T_gt, 1e-3, np.radians(2.0), 12, np.random.default_rng(3)).poses
+    assert likelihood.stop() is None
+    likelihood.record()
+    a, b = likelihood(poses[:5]), likelihood(poses[5:])
+    taped_poses, terms, ll = likelihood.stop()
+    np.testing.assert_array_equal(taped_poses, poses)
+    np.testing.assert_array_equal(ll, np.concatenate([a, b]))
+    assert terms.shape == (12, len(likelihood.observation.sensors))
+    np.testing.assert_allclose(terms.sum(axis=1), ll, rtol=1e-12)
+    iou_t, iou_v = likelihood.ious(poses)
+    weights = np.concatenate([likelihood.gamma, likelihood.nu])
+    tau = likelihood.cfg.filter.temperature
+    np.testing.assert_allclose(terms, np.concatenate([iou_t, iou_v], axis=1) * weights / tau, rtol=1e-12)
+    assert np.all(terms[:, 2:] > 100.0)  # both cameras see the cube: the terms are not vacuous
+    likelihood(poses[:2])
+    assert likelihood.stop() is None
