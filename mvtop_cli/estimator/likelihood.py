@@ -357,17 +357,22 @@ class Likelihood:
     def scored(self, T_ee_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4) and their per-sensor terms
         (N, S) [nats] (``sensor_terms``); kept on the ``tape`` while recording."""
+        return self._score(T_ee_object, terms=True)
+
+    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
+        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4); kept on the ``tape`` while
+        recording."""
+        return self._score(T_ee_object, terms=self.tape is not None)[0]
+
+    def _score(self, T_ee_object: np.ndarray, terms: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Log-likelihoods (N,) and, when ``terms`` (or recording), the per-sensor terms (N, S)."""
         t0 = time.perf_counter()
         iou_t, iou_v = self.ious(T_ee_object)
         ll = self.log_likelihood(T_ee_object, iou_t, iou_v, self.gamma, self.nu, t0)
-        terms = self.sensor_terms(iou_t, iou_v)
+        table = self.sensor_terms(iou_t, iou_v) if terms else None
         if self.tape is not None:
-            self.tape.append((np.array(T_ee_object, dtype=np.float64), terms, ll))
-        return ll, terms
-
-    def __call__(self, T_ee_object: np.ndarray) -> np.ndarray:
-        """Log-likelihoods (N,) of poses ``T_ee_object`` (N, 4, 4) (``scored``)."""
-        return self.scored(T_ee_object)[0]
+            self.tape.append((np.array(T_ee_object, dtype=np.float64), table, ll))
+        return ll, table
 
     def log_likelihood(self, T_ee_object: np.ndarray, iou_t: np.ndarray, iou_v: np.ndarray, gamma: np.ndarray,
                        nu: np.ndarray, t0: float) -> np.ndarray:

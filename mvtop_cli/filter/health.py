@@ -290,7 +290,7 @@ class RivalMode:
         likelihood (the mode check's terms)."""
         until = "until a later check rules it out" if self.sensor is None else "for the rest of the run"
         return warning(
-            self.frame, "rival_mode" if self.sensor is None else "sensors_disagree",
+            self.frame, self.kind,
             f"{scored}another pose {self.translation_mm:.2f} mm / {self.rotation_deg:.2f} deg from the estimate "
             f"explains the sensors {self.comparison}: {until}, the covariance is the grasp prior's spread about the "
             "estimate",
@@ -298,6 +298,11 @@ class RivalMode:
             ratio=-self.nats_below if self.sensor is None else self.others_gain,
             **({} if self.sensor is None else {"sensor": self.sensor, "others_gain": self.others_gain}),
         )
+
+    @property
+    def kind(self) -> str:
+        """Its warning kind and flag: ``sensors_disagree`` with a ``sensor``, else ``rival_mode``."""
+        return "rival_mode" if self.sensor is None else "sensors_disagree"
 
     @property
     def comparison(self) -> str:
@@ -335,7 +340,7 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
             f"at frame {rival.frame} another pose {rival.translation_mm:.2f} mm / {rival.rotation_deg:.2f} deg from "
             f"the estimate explained the sensors {rival.comparison}, and no later check ruled it out: the "
             "estimate may be either; its covariance is the grasp prior's spread about it "
-            f"(flag {'rival_mode' if rival.sensor is None else 'sensors_disagree'}); check it against another "
+            f"(flag {rival.kind}); check it against another "
             "measurement before relying on it",
             rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,
         )
