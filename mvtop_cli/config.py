@@ -475,10 +475,12 @@ class OutputConfig:
         0.0, 1000.0, lo_open=True,
         doc="with particles_and_evidence: the likelihood's widths are taken this many times wider in the "
             "reported covariance (calibrated on benchmark seeds 3000-3005, checked on 5000-5009: README)"))
-    evidence_profile: bool = field(default=False, metadata={"doc": (
+    evidence_profile: bool | Literal["without_cameras"] = field(default="without_cameras", metadata={"doc": (
         "on the check frames (search.rival_every, contact onsets) also measure the likelihood's profile widths "
         "(each axis with the other five searched: estimator/evidence.py) and report the wider of them and the "
-        "probe's in the covariance until the next check; the estimates are the same either way")})
+        "probe's in the covariance until the next check; the estimates are the same either way. "
+        "without_cameras: only on check frames no camera evidence enters (touch alone, whose pads leave "
+        "ridges the one-axis probe misses: README, Reading the evidence)")})
     evidence_profile_translation_m: float = field(default=0.002, metadata=_rng(
         1e-6, 0.1, lo_open=True, doc="the profile's farthest offset along each translation axis (also at 1/4 and 1/2)"))
     evidence_profile_rotation_deg: float = field(default=4.0, metadata=_rng(

@@ -262,10 +262,12 @@ class Estimator:
             flags.append("sensor_downweighted")
         flags = list(dict.fromkeys(flags))
         evidence = self._evidence(likelihood, result.estimate, sensor_iou, has_evidence)
-        if evidence is not None and due and self.cfg.output.evidence_profile:
+        if evidence is not None and due and self._profiled(observation):
             t_profile = time.perf_counter()
             self.profile_sigma = self._profile(frame.index, likelihood, result.estimate, evidence.log_likelihood)
             checks_s += time.perf_counter() - t_profile
+        elif evidence is not None and due:
+            self.profile_sigma = None  # a check frame the cameras see again: the probe's widths hold
         if evidence is not None and self.profile_sigma is not None:
             evidence = replace(evidence, profile_sigma=self.profile_sigma)
 
@@ -396,6 +398,12 @@ class Estimator:
         ll, sigma = likelihood_widths(likelihood, T_ee_object, o.evidence_step_translation_m,
                                       np.radians(o.evidence_step_rotation_deg))
         return EvidenceReport(dict(sensor_iou), ll, sigma)
+
+    def _profiled(self, observation: Observation) -> bool:
+        """Whether a check frame with this observation measures the profile widths
+        (``output.evidence_profile``; ``without_cameras``: when no camera's evidence enters it)."""
+        mode = self.cfg.output.evidence_profile
+        return not observation.cameras if mode == "without_cameras" else mode
 
     def _profile(self, index: int, likelihood: Likelihood, T_ee_object: np.ndarray, centre_ll: float) -> np.ndarray:
         """Frame ``index``'s profile widths (6,) about the estimate (``evidence.profile_widths``) on

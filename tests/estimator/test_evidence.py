@@ -207,7 +207,7 @@ def test_the_profile_widens_the_reported_covariance_from_the_check_frame_on_and_
     root = Path(__file__).resolve().parents[2]
     base = load_config(root / "configs" / "cube.yaml")
     base = dataclasses.replace(base, filter=dataclasses.replace(base.filter, num_particles=100))
-    assert base.search.rival_every == 10 and not base.output.evidence_profile
+    assert base.search.rival_every == 10 and base.output.evidence_profile == "without_cameras"
     runs = {}
     for on in (False, True):
         cfg = dataclasses.replace(base, output=dataclasses.replace(base.output, evidence_profile=on))
@@ -240,6 +240,41 @@ def test_the_profile_widens_the_reported_covariance_from_the_check_frame_on_and_
         base.output, evidence_profile=True)))
     resumed.resume_after(dataclasses.replace(on[10], evidence=None))
     np.testing.assert_array_equal(resumed.profile_sigma, on[9].evidence.profile_sigma)
+
+
+def test_by_default_the_profile_is_measured_where_no_camera_evidence_enters():
+    """`output.evidence_profile: without_cameras` (the default) on the cube sample: touch alone (the
+    M-TOP modalities) measures the profile on the check frame (9) and carries it on; with the
+    cameras it is not measured, as with the setting off, and a check frame the cameras see drops
+    widths an earlier check without them measured (here put in place before frame 9)."""
+    import dataclasses
+    from pathlib import Path
+
+    from mvtop_cli.config import load_config
+    from mvtop_cli.estimator import Estimator
+    from mvtop_cli.io.frames import FrameReader
+    from mvtop_cli.io.mcap_reader import McapLog
+    from mvtop_cli.pipelines.estimate import log_topics, sensor_topics
+
+    root = Path(__file__).resolve().parents[2]
+    base = load_config(root / "configs" / "cube.yaml")
+    base = dataclasses.replace(base, filter=dataclasses.replace(base.filter, num_particles=100))
+    profiled = {}
+    for modalities in (("tactile", "contact"), ("vision", "tactile", "contact")):
+        cfg = dataclasses.replace(base, modalities=modalities)
+        with McapLog(root / "sample_logs" / "cube.mcap") as log:
+            reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
+            est = Estimator.from_config(cfg, lambda fr, t, reader=reader: reader.tf.lookup("world", fr, t))
+            frames = []
+            for frame, _ in zip(reader, range(11)):
+                if frame.index == 9 and "vision" in modalities:
+                    est.profile_sigma = np.full(6, 1e-3)
+                frames.append(est.step(frame))
+        assert all(f.evidence is not None for f in frames)
+        profiled[modalities] = [f.evidence.profile_sigma is not None for f in frames]
+        assert (est.profile_sigma is not None) == ("vision" not in modalities)
+    assert profiled["tactile", "contact"] == [False] * 9 + [True, True]
+    assert profiled["vision", "tactile", "contact"] == [False] * 11
 
 
 def test_leave_one_out_finds_the_pose_all_sensors_but_one_prefer():
