@@ -442,6 +442,41 @@ class EdgesConfig:
 
 
 @dataclass(frozen=True)
+class ExtrinsicsConfig:
+    """The camera extrinsics check (beyond the paper; ``estimator/extrinsics.py``): on each
+    camera's first image, the environment meshes' projected outlines against the image's edges,
+    with the camera turned about its optical centre."""
+
+    mode: Literal["correct", "warn", "off"] = field(default="correct", metadata={"doc": (
+        "a camera the known scene lines up with only turned: correct (use it turned so for the run, warning "
+        "camera_extrinsics), warn (use it as recorded, warning camera_extrinsics and the run reported suspect) "
+        "or off (no check)")})
+    range_deg: float = field(default=4.0, metadata=_rng(
+        0.0, 30.0, lo_open=True, doc="the turns searched about each optical axis, +- [deg]"))
+    step_deg: float = field(default=0.25, metadata=_rng(
+        0.0, 10.0, lo_open=True, doc="the search grid's step about each axis [deg]"))
+    min_step_deg: float = field(default=0.01, metadata=_rng(
+        0.0, 10.0, lo_open=True, doc="the local refinement halves its step down to this [deg]"))
+    min_turn_deg: float = field(default=0.3, metadata=_rng(
+        0.0, 30.0, lo_open=True, doc="a camera is misaligned when the best turn is at least this [deg] ..."))
+    min_gain: float = field(default=0.2, metadata=_rng(
+        0.0, 1.0, lo_open=True, doc="... and adds at least this share of its outline score"))
+    min_samples: int = field(default=200, metadata=_rng(
+        1, 10_000_000, doc="contour samples of the known scene in the image needed to judge a camera"))
+    mesh_tolerance_deg: float = field(default=0.3, metadata=_rng(
+        0.0, 30.0, doc="a misaligned camera is corrected only when each environment mesh (with a quarter of "
+                       "min_samples) lines up on its own within this of the joint turn about the optical x and y axes "
+                       "[deg]: else more than a turn is off"))
+    background_factor: float = field(default=2.0, metadata=_rng(
+        0.0, 100.0, doc="a contour sample counts for the alignment above this many times the image's median "
+                        "gradient, against it below"))
+    blur_sigma_px: float = field(default=1.0, metadata=_rng(
+        0.0, 20.0, doc="Gaussian smoothing of the image before its derivatives [image pixels]"))
+    spacing_px: float = field(default=1.0, metadata=_rng(
+        0.05, 100.0, doc="distance between samples along the projected contour edges [image pixels]"))
+
+
+@dataclass(frozen=True)
 class ConsistencyConfig:
     """The sensor consistency watch (``filter.health.SensorConsistency``): a sensor whose
     mask disagrees with the estimate the others agree on for ``frames`` frames in a row has
@@ -532,6 +567,7 @@ class Config:
     search: SearchConfig = SearchConfig()
     consistency: ConsistencyConfig = ConsistencyConfig()
     edges: EdgesConfig = EdgesConfig()
+    extrinsics: ExtrinsicsConfig = ExtrinsicsConfig()
     contact: ContactConfig = ContactConfig()
     output: OutputConfig = OutputConfig()
     modalities: tuple[Literal["vision", "tactile", "contact"], ...] = MODALITIES

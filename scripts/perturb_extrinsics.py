@@ -1,9 +1,9 @@
 """Copy a log with one camera's extrinsics turned: every /tf_static transform whose child is
-FRAME is rotated by DEG degrees about its own AXIS (x, y or z of that frame), the rest of the log
-copied unchanged. For checking what a miscalibrated camera does to an estimate (README: How far
-to trust the reported covariance; docs/robustness.md).
+FRAME is rotated by DEG degrees about its own AXIS (x, y or z of that frame) and, with --shift-mm,
+moved along its own axes, the rest of the log copied unchanged. For checking what a miscalibrated
+camera does to an estimate (README: How far to trust the reported covariance; docs/robustness.md).
 
-Usage: .venv/bin/python scripts/perturb_extrinsics.py LOG OUT FRAME DEG [--axis y]
+Usage: .venv/bin/python scripts/perturb_extrinsics.py LOG OUT FRAME DEG [--axis y] [--shift-mm X,Y,Z]
 e.g.   scripts/perturb_extrinsics.py sample_logs/cube.mcap /tmp/cube_front2.mcap front_optical 2
 """
 
@@ -25,9 +25,11 @@ def main() -> None:
     ap.add_argument("frame")
     ap.add_argument("deg", type=float)
     ap.add_argument("--axis", choices=("x", "y", "z"), default="y")
+    ap.add_argument("--shift-mm", default="0,0,0", help="move the frame along its own x, y, z axes [mm]")
     a = ap.parse_args()
     turn = np.eye(4)
     turn[:3, :3] = se3.rotvec_to_matrix(np.radians(a.deg) * np.eye(3)["xyz".index(a.axis)])
+    turn[:3, 3] = 1e-3 * np.array([float(v) for v in a.shift_mm.split(",")])
     turned = 0
     with McapLog(a.log) as log, LogWriter(a.out) as out:
         types = {t.name: t.type for t in log.summary().topics}
@@ -48,7 +50,8 @@ def main() -> None:
     if not turned:
         a.out.unlink()
         raise SystemExit(f"{a.log}: no /tf_static transform has child frame {a.frame!r}")
-    print(f"wrote {a.out}: {a.frame} turned {a.deg:g} deg about its {a.axis} axis ({turned} transforms)")
+    print(f"wrote {a.out}: {a.frame} turned {a.deg:g} deg about its {a.axis} axis, moved {a.shift_mm} mm "
+          f"({turned} transforms)")
 
 
 if __name__ == "__main__":

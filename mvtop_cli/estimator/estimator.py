@@ -48,6 +48,7 @@ from ..filter.search import cross_entropy_search, local_search, tempered_resampl
 from ..geometry import se3
 from ..records import Frame
 from .evidence import EvidenceReport, evidence_covariance, leave_one_out, likelihood_widths, profile_widths
+from .extrinsics import CameraAlignment, check_camera, corrected_frame
 from .likelihood import Likelihood, ProposalLikelihood
 from .motion import MotionModel
 from .observation import Observation, ObservationModel
@@ -104,6 +105,9 @@ class FrameEstimate:
     # the latest check's profile widths (6,) (``output.evidence_profile``; None: none measured yet), which
     # the reported covariance uses until the next check, whether or not this frame had evidence
     profile_sigma: np.ndarray | None = None
+    # per camera checked so far, what the extrinsics check found (``extrinsics``; None: nothing to judge by), for
+    # the run: a corrected camera is used turned from then on, a misaligned one left as recorded makes the run suspect
+    extrinsics: dict[str, CameraAlignment | None] = field(default_factory=dict)
     # wall seconds per stage of this frame, which add up to the step (masking, the filter's searches,
     # prediction and refinement, the mode and rival checks, diagnostics), and the likelihood's counts
     # (``Estimator.step``; ``pipelines.track.stage_timing``)
@@ -179,6 +183,7 @@ class Estimator:
         self.rival: RivalMode | None = None  # the rival no check has ruled out yet
         self.disagreement: RivalMode | None = None  # the first frame's sensors contradicted each other
         self.profile_sigma: np.ndarray | None = None  # the latest check's profile widths (output.evidence_profile)
+        self.extrinsics: dict[str, CameraAlignment | None] = {}  # per camera checked, the extrinsics check's finding
         self.in_contact = False  # the last frame's contact state (search.check_at_contact)
         self.settled = False  # whether the last frame left a settled belief (filter.tracking_particles)
         # the frames since the last contact, for the mode check (search.mode_history_frames; none kept
@@ -206,6 +211,8 @@ class Estimator:
         the motion model (``estimate_jump``)."""
         t_step = time.perf_counter()
         self._search_s = 0.0
+        frame, aligned = self._aligned(frame)
+        align_s = time.perf_counter() - t_step
         first = self.particles is None
         if first:
             self.particles = self.prior.sample(self.cfg.filter.num_particles, self.rng)
@@ -239,6 +246,7 @@ class Estimator:
         counts = {"invalid_log_likelihood": likelihood.invalid, "evaluated_poses": likelihood.evaluated}
         warnings = step_warnings(frame.index, {**result.diagnostics, **counts}, len(result.particles))
         flags = list(result.flags)
+        warnings += [a.warning() for a in aligned]
         if switch is not None:
             warnings.append(switch.record)
         if switched:
@@ -314,6 +322,11 @@ class Estimator:
             # (search.disagreement_margin), while the estimate stayed 4.4 mm off
             flags.append(self.disagreement.kind)
             suspect = True
+        misaligned = [a for a in self.extrinsics.values() if a is not None and a.misaligned]
+        if misaligned:
+            flags.append("camera_extrinsics")
+            # a camera left turned (extrinsics.mode: warn, or a turn beyond the searched range) pulls the estimate
+            suspect = suspect or any(a.suspect for a in misaligned)
 
         self.settled = not _UNSETTLED.intersection(flags)
         self.particles = result.particles
@@ -343,9 +356,10 @@ class Estimator:
             warnings=tuple(warnings), sensor_iou=sensor_iou, evidence=evidence,
             consistency={"factors": dict(self.consistency.factors), "streak": dict(self.consistency.streak)},
             unpinned=self.unpinned, rival=self.rival, disagreement=self.disagreement, leave_one_out=left_out,
-            profile_sigma=self.profile_sigma,
-            timings={"masking_s": t_masks - t_step, "search_s": search_s, "filter_s": t_filter - t_masks - search_s,
-                     "checks_s": checks_s, "diagnostics_s": t_end - t_filter - checks_s,
+            profile_sigma=self.profile_sigma, extrinsics=dict(self.extrinsics),
+            timings={"masking_s": t_masks - t_step - align_s, "search_s": search_s,
+                     "filter_s": t_filter - t_masks - search_s, "checks_s": checks_s + align_s,
+                     "diagnostics_s": t_end - t_filter - checks_s,
                      "likelihood_s": likelihood.seconds, "likelihood_calls": likelihood.calls,
                      "poses_scored": likelihood.evaluated, "step_s": t_end - t_step, "tracked": tracking},
         )
@@ -356,7 +370,8 @@ class Estimator:
         same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
         the rival no check has ruled out yet (``FrameEstimate.rival``), the first frame's
         disagreement (``FrameEstimate.disagreement``), the latest profile widths
-        (``FrameEstimate.profile_sigma``), the contact state (``search.check_at_contact``) and whether
+        (``FrameEstimate.profile_sigma``), the extrinsics check's findings (``FrameEstimate.extrinsics``),
+        the contact state (``search.check_at_contact``) and whether
         it left the belief settled (``filter.tracking_particles``)."""
         self.consistency.factors = dict(last.consistency.get("factors", {}))
         self.consistency.streak = dict(last.consistency.get("streak", {}))
@@ -364,6 +379,7 @@ class Estimator:
         self.rival = last.rival
         self.disagreement = last.disagreement
         self.profile_sigma = last.profile_sigma
+        self.extrinsics = dict(last.extrinsics)
         self.in_contact = bool(last.contact)
         self.settled = not _UNSETTLED.intersection(last.flags)
 
@@ -376,6 +392,24 @@ class Estimator:
             self.history.append(frame)
         else:
             self.history.clear()
+
+    def _aligned(self, frame: Frame) -> tuple[Frame, list[CameraAlignment]]:
+        """``frame`` with the cameras the extrinsics check corrected turned (``extrinsics.mode``), and
+        the misaligned cameras it found on this frame: each camera is checked on its first image
+        (``estimator/extrinsics.py``), and what it found stands for the run."""
+        settings = self.cfg.extrinsics
+        found = []
+        if settings.mode != "off":
+            for name, img in frame.cameras.items():
+                if name in self.extrinsics:
+                    continue
+                alignment = check_camera(self.scene, name, img, frame.index,
+                                         lambda tf_frame, img=img: self.observations.frame_pose(tf_frame, img.stamp_ns),
+                                         settings)
+                self.extrinsics[name] = alignment
+                if alignment is not None and alignment.misaligned:
+                    found.append(alignment)
+        return corrected_frame(frame, self.extrinsics), found
 
     def _evidence_contact(self, frame: Frame) -> bool | None:
         """The frame's contact state as evidence for the contact likelihood (eq. 8-9): the log's

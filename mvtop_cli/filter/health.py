@@ -33,6 +33,8 @@ WARNING_KINDS: dict[str, str] = {
     "rival_mode": "a fresh search found another pose that explains the frame about as well as the estimate",
     "sensors_disagree": "the sensors contradict each other: without one of them the others prefer another pose by many "
                         "nats, so the estimate rests on that sensor alone",
+    "camera_extrinsics": "the known scene lines up with a camera's image only with the camera turned: its "
+                         "extrinsics are likely off (corrected, or the run reported suspect)",
     "mode_switch": "with each pose choosing its own camera masks, another pose explained the frame far better: the "
                    "frame was redone from it",
     "mode_held": "with each pose choosing its own camera masks, another pose explained the frame far better, but the "

@@ -83,10 +83,13 @@ class SensorMasks:
 def frame_masks(estimator: Estimator, frame: Frame, result: FrameEstimate,
                 frame_ids: dict[str, str]) -> tuple[SensorMasks, ...]:
     """The masks of every sensor observed in ``frame`` (the estimator's last step), the
-    rendered ones at ``result``'s estimate; ``frame_ids`` maps sensor names to TF frames."""
+    rendered ones at ``result``'s estimate; ``frame_ids`` maps sensor names to TF frames. The
+    cameras are given as the step used them (one whose extrinsics it corrected turned:
+    ``estimator/extrinsics.py``)."""
     likelihood = estimator.last_likelihood
-    if likelihood is None or likelihood.frame is not frame:
+    if likelihood is None or (likelihood.frame.index, likelihood.frame.stamp_ns) != (frame.index, frame.stamp_ns):
         raise ValueError(f"frame {frame.index}: the estimator's last step was another frame")
+    frame = likelihood.frame
     obs = likelihood.observation
     rendered = likelihood.rendered_masks(result.T_ee_object)
     out = []

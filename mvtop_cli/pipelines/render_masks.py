@@ -5,14 +5,16 @@ rendered at the estimate (from a track) and at the ground truth (when the log ha
 overlay like the paper's figure 6 (observed mask in blue, rendered mask in yellow, IoU written
 on it); a contact sheet of all sensors per frame; and a video of the sheets over the log.
 Without a track the masks are rendered at the ground truth, or at a pose given by the caller,
-which is how a wrong extrinsic or grasp pose shows at once.
+which is how a wrong extrinsic or grasp pose shows at once. With a track whose run corrected a
+camera's extrinsics (summary.json's ``extrinsics``), that camera is used turned as the run used
+it, so its overlays show what the estimator saw (``masks.json`` names the turn).
 """
 
 from __future__ import annotations
 
 import csv
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -21,6 +23,7 @@ import numpy as np
 
 from ..config import Config
 from ..errors import MvtopError, TrackError
+from ..estimator.extrinsics import turned_camera
 from ..estimator.observation import Observer
 from ..estimator.scene import OBJECT_ID, SceneModel
 from ..geometry import se3
@@ -68,6 +71,22 @@ def read_track_poses(track_dir: Path) -> dict[int, np.ndarray]:
     return poses
 
 
+def read_track_turns(track_dir: Path) -> dict[str, list[float]]:
+    """Per camera the run corrected, the turn [deg] about its optical x, y, z axes it used, from an
+    estimate folder's summary.json (``extrinsics``; none when the folder has no summary.json or
+    the run checked no camera)."""
+    path = Path(track_dir) / "summary.json"
+    if not path.is_file():
+        return {}
+    try:
+        found = json.loads(path.read_text()).get("extrinsics") or {}
+        return {name: [float(v) for v in a["turn_deg"]] for name, a in found.items()
+                if a is not None and a.get("corrected")}
+    except (ValueError, KeyError, TypeError, AttributeError) as err:
+        raise TrackError(f"{path}: malformed extrinsics block ({err}); expected the summary.json written by "
+                         "`mvtop estimate`") from None
+
+
 def _overlay(image: np.ndarray, observed: np.ndarray | None, rendered: np.ndarray | None,
              truth: np.ndarray | None, label: str) -> np.ndarray:
     """BGR overlay: observed mask filled blue, rendered mask filled yellow, truth outlined."""
@@ -101,11 +120,13 @@ def render_masks(
     ``out_dir``; returns the content of masks.json."""
     scene = SceneModel(cfg, build_contact=False)
     track = read_track_poses(track_dir) if track_dir is not None else None
+    turns = read_track_turns(track_dir) if track_dir is not None else {}
     observer = Observer(cfg)
     gel = {t.name: t.gel_distance_m for t in cfg.sensors.tactile}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary: dict = {"log": str(log_path), "track": None if track_dir is None else str(track_dir), "frames": []}
+    summary: dict = {"log": str(log_path), "track": None if track_dir is None else str(track_dir),
+                     "cameras_turned_deg": turns, "frames": []}
     sheets: list[Path] = []
     with McapLog(log_path) as log:
         reader = FrameReader(log, sensor_topics(cfg), log_topics(cfg))
@@ -128,6 +149,8 @@ def render_masks(
             tiles = []
             for name, img in [*frame.cameras.items(), *frame.tactile.items()]:
                 tactile = name in frame.tactile
+                if name in turns:  # the run used this camera turned (its extrinsics check)
+                    img = replace(img, T_world_sensor=turned_camera(img.T_world_sensor, turns[name]))
                 full = Roi.full(img.camera)
                 occ = [] if tactile else scene.occluders(
                     img.T_world_sensor, lambda f, img=img: reader.tf.lookup(cfg.frames.world, f, img.stamp_ns)

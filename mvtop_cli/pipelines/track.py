@@ -38,6 +38,9 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
     suspect = suspect_warning([r.evidence.pinned for r in results if r.evidence is not None],
                               cfg.output.suspect_unpinned_fraction,
                               getattr(last, "rival", None) or getattr(last, "disagreement", None))
+    left_turned = [a for a in getattr(last, "extrinsics", {}).values() if a is not None and a.suspect]
+    if suspect is None and left_turned:
+        suspect = left_turned[0].suspect_warning()
     if suspect is not None:
         warnings.append(suspect)
     out = {
@@ -65,6 +68,7 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         "warning_counts": count_warnings(warnings),
         "sensors": sensor_report(agreement, warnings),
         "evidence": evidence_report(results),
+        "extrinsics": extrinsics_report(last),
     }
     if last.T_world_object_gt is not None:
         dt = last.T_world_object[:3, 3] - last.T_world_object_gt[:3, 3]
@@ -89,6 +93,27 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
     left_out = None if checked is None else {"frame": checked.index, "others_gain_nats": checked.leave_one_out}
     return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg"],
                                           "rows": frames}, "leave_one_out": left_out}
+
+
+def extrinsics_report(last: FrameEstimate) -> dict:
+    """summary.json's ``extrinsics``: per camera, what the extrinsics check found on its first
+    image (``estimator/extrinsics.py``): the frame, the turn [deg] about the camera's optical x,
+    y, z axes that lines the known scene up with the image best, its angle, the outline score
+    with the recorded extrinsics and with the turn, the share the turn adds, the contour samples
+    read, the largest difference between a mesh's own turn and the joint one (``mesh_spread_deg``,
+    null unless misaligned) and the verdict (``misaligned``, ``corrected``, ``one_turn``,
+    ``at_edge``); null where the known scene
+    gave too few samples to judge by. Empty when the check is off or no camera was seen."""
+    out = {}
+    for name, a in getattr(last, "extrinsics", {}).items():
+        out[name] = None if a is None else {
+            "frame": a.frame, "turn_deg": [round(v, 4) for v in a.turn_deg], "angle_deg": round(a.angle_deg, 4),
+            "score_recorded": round(a.score_recorded, 1), "score_turned": round(a.score_turned, 1),
+            "gain": round(a.gain, 4), "samples": a.samples,
+            "mesh_spread_deg": None if a.mesh_spread_deg is None else round(a.mesh_spread_deg, 4),
+            "misaligned": a.misaligned, "corrected": a.corrected, "one_turn": a.one_turn, "at_edge": a.at_edge,
+        }
+    return out
 
 
 STAGES = ("read_s", "masking_s", "search_s", "filter_s", "checks_s", "diagnostics_s", "likelihood_s", "step_s")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_logs" / "conn1.mcap"
@@ -76,3 +77,36 @@ def test_render_masks_at_ground_truth_and_at_a_given_pose(tmp_path):
     assert off["left"]["iou_estimate"] < sensors["left"]["iou_truth"] - 0.05
     err = run("render-masks", str(SAMPLE), "--config", str(CONFIG), "--out", str(bad), "--pose-ee", "1,2,3")
     assert err.returncode == 2 and "--pose-ee" in err.stderr
+
+
+def test_render_masks_uses_a_camera_as_the_run_corrected_it(tmp_path):
+    """The sample with its front camera recorded turned 2 deg: `estimate` corrects the camera
+    (summary.json's extrinsics), and `render-masks --track` renders through the camera as the run
+    used it, so the ground truth's front mask is where the log as recorded puts it (IoU above
+    0.95); without the track it is rendered through the turned camera, far from it."""
+    turned = tmp_path / "turned.mcap"
+    made = subprocess.run([sys.executable, str(REPO / "scripts" / "perturb_extrinsics.py"), str(SAMPLE), str(turned),
+                           "front_optical", "2"], capture_output=True, text=True, timeout=600)
+    assert made.returncode == 0, made.stderr
+    track = tmp_path / "track"
+    est = run("estimate", str(turned), "--config", str(CONFIG), "--out", str(track), "--particles", "50",
+              "--max-frames", "1")
+    assert est.returncode == 0, est.stderr
+    assert "camera_extrinsics" in est.stderr and "camera 'front'" in est.stderr
+    found = json.loads((track / "summary.json").read_text())["extrinsics"]
+    assert found["front"]["corrected"] and not found["side"]["misaligned"]
+
+    def truth_mask(log: Path, name: str, *extra: str) -> tuple[np.ndarray, dict]:
+        out = tmp_path / name
+        proc = run("render-masks", str(log), "--config", str(CONFIG), "--frames", "0", "--no-video",
+                   "--out", str(out), *extra)
+        assert proc.returncode == 0, proc.stderr
+        return _mask(out / "frame_0000_front_truth.png"), json.loads((out / "masks.json").read_text())
+
+    recorded, _ = truth_mask(SAMPLE, "recorded")
+    corrected, summary = truth_mask(turned, "corrected", "--track", str(track))
+    raw, raw_summary = truth_mask(turned, "raw")
+    assert summary["cameras_turned_deg"]["front"][1] == pytest.approx(2.0, abs=0.1)
+    assert raw_summary["cameras_turned_deg"] == {}
+    assert (recorded & corrected).sum() / (recorded | corrected).sum() > 0.95
+    assert (recorded & raw).sum() / (recorded | raw).sum() < 0.5

@@ -1,0 +1,278 @@
+"""The camera extrinsics check (beyond the paper): does the known scene line up with each image?
+
+Every camera sees, besides the part, meshes whose poses the log fixes without any estimate:
+the receptacle and the board in ``world``, the fingers on their TF frames. With the camera's
+recorded extrinsics right, their projected outlines run along the image's edges; with the camera
+turned by a degree (about 5 mm at 0.3 m, ten pixels) they miss them, and the part's estimate
+follows the turned camera while every sensor seems to agree (docs/robustness.md). The check
+reads only the image and the TF tree: no mask, no estimate, no belief enters it.
+
+``scene_outline_score`` sums, over the visible samples of the environment meshes' projected
+contour edges (``render.contour``, every ``spacing_px`` image pixels), the colour gradient across
+the edge minus ``background_factor`` times the image's typical gradient: the contour term's
+log-likelihood ratio of "an edge here" (``estimator/edges.py``), for the scene instead of the
+part. ``align_camera`` turns the camera about its optical centre (a rotation ``turn`` in its
+optical frame, ``T_sensor_mesh -> Exp(turn) @ T_sensor_mesh``) over a grid of +-``range_deg``
+about x and y, then about z, then refines locally down to ``min_step_deg``, and keeps the turn
+that scores best. A camera is misaligned when that turn is at least ``min_turn_deg`` and raises
+the score by at least ``min_gain`` of its best value (``CameraAlignment.misaligned``).
+
+What follows (``extrinsics.mode``): ``correct`` uses the camera at ``T_world_sensor @
+Exp(turn)^-1`` for the whole run and says so (warning ``camera_extrinsics``); ``warn`` only says
+so and reports the run as suspect (flag ``camera_extrinsics``, the covariance the grasp prior's
+spread about the estimate). A turn at the edge of the searched range is never corrected: the
+true one may lie beyond it, so the run is reported as suspect whatever the mode.
+
+A turn is corrected only where it is the whole error: each environment mesh with at least a
+quarter of ``min_samples`` contour samples is lined up on its own, from the joint turn, and each
+one's own turn must lie within ``mesh_tolerance_deg`` of the joint turn about the optical x and y
+axes (those move the image; a small mesh pins the roll about z poorly). A camera moved along its
+optical axis scales the scene about the image centre: a turn then lines up the far board's outline
+and leaves the fingers, near the centre, 0.6-1.4 deg away (camera moved 5-10 mm, cube sample),
+where that turn would put the part 6-12 pixels off. Such a camera is reported as with ``warn``
+and not corrected (``CameraAlignment.one_turn``). A camera moved across its axis is much like a
+turn at the scene's depth, and the meshes agree on one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..config import ExtrinsicsConfig
+from ..filter.health import warning
+from ..geometry import se3
+from ..records import Frame, SensorImage
+from ..render.roi import Roi
+from .edges import EdgeImage
+from .scene import EnvPart, SceneModel
+
+# The local refinement stops after this many moves (it moves at most range / step per scale).
+_MAX_MOVES = 200
+
+
+@dataclass(frozen=True)
+class CameraAlignment:
+    """The extrinsics check of one camera on one frame.
+
+    ``turn_deg`` (3,) [deg]: the rotation vector, in the camera's optical frame, that lines the
+    known scene up with the image best (``Exp(turn) @ T_sensor_mesh``); ``score_recorded`` /
+    ``score_turned`` the scene's outline score [gradient units above the background, summed
+    over samples] with the recorded extrinsics and with the turn; ``samples`` the contour
+    samples read with the recorded extrinsics; ``at_edge`` the turn lies on the searched
+    range's edge (the true one may be larger); ``mesh_spread_deg`` the largest difference about
+    the optical x and y axes between a mesh's own best turn and the joint one [deg] (None when
+    not measured: the camera is not misaligned); ``one_turn`` that spread is within
+    ``extrinsics.mesh_tolerance_deg``, so one turn corrects the whole error; ``misaligned`` the
+    check's verdict; ``corrected`` the run uses the turned camera (``extrinsics.mode: correct``)."""
+
+    camera: str
+    frame: int
+    turn_deg: tuple[float, float, float]
+    score_recorded: float
+    score_turned: float
+    samples: int
+    at_edge: bool
+    mesh_spread_deg: float | None
+    one_turn: bool
+    misaligned: bool
+    corrected: bool
+
+    @property
+    def angle_deg(self) -> float:
+        """The turn's angle [deg]."""
+        return float(np.linalg.norm(self.turn_deg))
+
+    @property
+    def gain(self) -> float:
+        """The share of the turned score the turn adds: 0 when the recorded extrinsics score best."""
+        return (self.score_turned - self.score_recorded) / max(abs(self.score_turned), 1e-12)
+
+    @property
+    def suspect(self) -> bool:
+        """A misaligned camera the run did not correct: the estimate rests on its wrong pose."""
+        return self.misaligned and not self.corrected
+
+    def corrected_pose(self, T_world_sensor: np.ndarray) -> np.ndarray:
+        """The camera's pose (4, 4) in ``world`` turned as the check found (``turned_camera``)."""
+        return turned_camera(T_world_sensor, self.turn_deg)
+
+    def warning(self) -> dict:
+        """The ``camera_extrinsics`` warning record of a misaligned camera (frame: the check's)."""
+        x, y, z = self.turn_deg
+        if self.corrected:
+            then = "the run used it turned so (extrinsics.mode: correct)"
+        elif self.at_edge:
+            then = ("the turn lies at the edge of the searched range (extrinsics.range_deg), so the true one may be "
+                    "larger and it was not corrected: the estimate may be far off and its covariance is the grasp "
+                    "prior's spread about it")
+        elif not self.one_turn:
+            then = (f"the environment meshes line up with turns up to {self.mesh_spread_deg:.2f} deg apart, so more "
+                    "than a turn is off (the camera moved, or a mesh misplaced in the config) and it was not "
+                    "corrected: the estimate may be far off and its covariance is the grasp prior's spread about it")
+        else:
+            then = ("the estimate used the recorded extrinsics (extrinsics.mode: warn) and may be far off; its "
+                    "covariance is the grasp prior's spread about it")
+        return warning(
+            self.frame, "camera_extrinsics",
+            f"camera {self.camera!r}: the known scene (environment meshes) lines up with its image only with the "
+            f"camera turned {self.angle_deg:.2f} deg ({x:.2f}, {y:.2f}, {z:.2f} deg about its optical x, y, z "
+            f"axes; outline score {self.score_recorded:.0f} -> {self.score_turned:.0f}): its extrinsics are likely "
+            f"off; {then}; recalibrate the camera",
+            sensor=self.camera, turn_deg=[float(v) for v in self.turn_deg], angle_deg=self.angle_deg,
+            gain=self.gain, mesh_spread_deg=self.mesh_spread_deg, ratio=self.angle_deg, corrected=self.corrected,
+        )
+
+    def suspect_warning(self) -> dict:
+        """The run's ``suspect_estimate`` record for a misaligned camera left uncorrected."""
+        return warning(
+            None, "suspect_estimate",
+            f"camera {self.camera!r} looks turned {self.angle_deg:.2f} deg from its recorded extrinsics (frame "
+            f"{self.frame}) and the estimate used them as recorded: it may be far off; its covariance is the grasp "
+            "prior's spread about it (flag camera_extrinsics); check it against another measurement before "
+            "relying on it",
+            sensor=self.camera, angle_deg=self.angle_deg,
+        )
+
+
+def turned_camera(T_world_sensor: np.ndarray, turn_deg) -> np.ndarray:
+    """A camera pose (4, 4) in ``world`` turned about its optical centre by the check's ``turn_deg``
+    (3,) [deg]: ``T_world_sensor @ Exp(turn)^-1``, so the scene at ``Exp(turn) @ T_sensor_mesh``,
+    where the image showed it, is where the turned camera sees it."""
+    T = np.eye(4)
+    T[:3, :3] = se3.rotvec_to_matrix(np.radians(np.asarray(turn_deg, dtype=np.float64)))
+    return T_world_sensor @ se3.invert(T)
+
+
+def scene_outline_score(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str], np.ndarray],
+                        turns_rad: np.ndarray, settings: ExtrinsicsConfig, edges: EdgeImage | None = None,
+                        parts: list[EnvPart] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The environment meshes' outline score in camera image ``img`` with the camera turned by
+    each rotation vector of ``turns_rad`` (N, 3) [rad, the camera's optical frame].
+
+    ``frame_pose(tf_frame)`` gives ``T_world_frame`` at the image's stamp for meshes on moving
+    frames. Every occluding environment mesh (``environment[i].occlude``, the ones the renderer
+    holds; or those of ``parts``) is read, without occlusion between them. Returns (score (N,) [CIE Lab units per pixel
+    above ``background_factor`` times the image's median gradient, summed over the samples],
+    samples (N,) int: the contour samples inside the image)."""
+    edges = edges if edges is not None else EdgeImage.of(img.image, Roi.full(img.camera), settings.blur_sigma_px)
+    level = settings.background_factor * edges.background
+    turns = np.repeat(np.eye(4)[None], len(turns_rad), axis=0)
+    turns[:, :3, :3] = se3.rotvec_to_matrix(np.asarray(turns_rad, dtype=np.float64).reshape(-1, 3))
+    T_sensor_world = se3.invert(img.T_world_sensor)
+    roi = Roi.full(img.camera)
+    score = np.zeros(len(turns))
+    samples = np.zeros(len(turns), dtype=np.int64)
+    for part in outlined(scene) if parts is None else parts:
+        T_world_frame = np.eye(4) if part.spec.frame == scene.cfg.frames.world else frame_pose(part.spec.frame)
+        T_sensor_mesh = T_sensor_world @ T_world_frame @ part.T_frame_mesh
+        s, n = scene.renderer.contour_gradient(f"env:{part.spec.name}", turns @ T_sensor_mesh, img.camera, roi,
+                                               edges.gx, edges.gy, None, settings.spacing_px, 0.0)
+        score += s - level * n
+        samples += n
+    return score, samples
+
+
+def outlined(scene: SceneModel) -> list[EnvPart]:
+    """The environment meshes the check reads: the occluding ones, which the renderer holds."""
+    return [part for part in scene.parts if part.spec.occlude]
+
+
+def align_camera(score: Callable[[np.ndarray], np.ndarray],
+                 settings: ExtrinsicsConfig) -> tuple[np.ndarray, float, bool]:
+    """The turn (3,) [deg] that maximises ``score(turns_rad (N, 3)) -> (N,)``: a grid over
+    +-``range_deg`` about x and y at ``step_deg`` (z at 0), then about z at the best x, y, then
+    a local search of the 26 neighbours, moving while one scores better and halving the step
+    down to ``min_step_deg``. Returns the turn, its score and whether it lies on the range's edge.
+    The recorded extrinsics (turn 0) are a grid point, so the best turn never scores below them."""
+    r, step = settings.range_deg, settings.step_deg
+    axis = np.linspace(-r, r, 2 * int(round(r / step)) + 1)
+
+    def best_of(turns_deg: np.ndarray) -> tuple[np.ndarray, float]:
+        values = score(np.radians(turns_deg))
+        k = int(np.argmax(values))  # the first of equals: the grids list turn 0 before its equals' mirror
+        return turns_deg[k], float(values[k])
+
+    gx, gy = np.meshgrid(axis, axis, indexing="ij")
+    grid = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    grid = np.concatenate([np.zeros((1, 3)), grid])  # turn 0 first: it wins ties
+    best, value = best_of(grid)
+    line = np.repeat(best[None], len(axis) + 1, axis=0)
+    line[1:, 2] = axis
+    best, value = best_of(line)
+    best, value = refine_turn(score, best, value, settings)
+    return best, value, bool(np.any(np.abs(best) >= r - step / 2.0))
+
+
+def refine_turn(score: Callable[[np.ndarray], np.ndarray], start_deg: np.ndarray, value: float,
+                settings: ExtrinsicsConfig) -> tuple[np.ndarray, float]:
+    """From ``start_deg`` (3,) scoring ``value``: the local search of ``align_camera``, the 26
+    neighbours at half ``step_deg``, moving while one scores better and halving the step down to
+    ``min_step_deg``, within +-``range_deg``. Returns the turn [deg] and its score."""
+    r = settings.range_deg
+    best, h, moves = np.asarray(start_deg, dtype=np.float64), settings.step_deg / 2.0, 0
+    offsets = np.stack(np.meshgrid(*[np.array([0.0, -1.0, 1.0])] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    while h >= settings.min_step_deg - 1e-12 and moves < _MAX_MOVES:
+        candidates = np.clip(best + h * offsets, -r, r)  # offsets[0] is the centre: it wins ties
+        values = score(np.radians(candidates))
+        k = int(np.argmax(values))
+        if values[k] > value and not np.array_equal(candidates[k], best):
+            best, value, moves = candidates[k], float(values[k]), moves + 1
+        else:
+            h /= 2.0
+    return best, value
+
+
+def check_camera(scene: SceneModel, name: str, img: SensorImage, frame_index: int,
+                 frame_pose: Callable[[str], np.ndarray], settings: ExtrinsicsConfig) -> CameraAlignment | None:
+    """The extrinsics check of camera ``name`` on its image ``img`` of frame ``frame_index``;
+    None when the known scene shows fewer than ``min_samples`` contour samples in the image
+    (nothing to judge by)."""
+    edges = EdgeImage.of(img.image, Roi.full(img.camera), settings.blur_sigma_px)
+
+    def score(turns_rad: np.ndarray) -> np.ndarray:
+        return scene_outline_score(scene, img, frame_pose, turns_rad, settings, edges)[0]
+
+    recorded, samples = scene_outline_score(scene, img, frame_pose, np.zeros((1, 3)), settings, edges)
+    if samples[0] < settings.min_samples:
+        return None
+    turn, turned, at_edge = align_camera(score, settings)
+    found = CameraAlignment(name, frame_index, tuple(float(v) for v in turn), float(recorded[0]), turned,
+                            int(samples[0]), at_edge, mesh_spread_deg=None, one_turn=True, misaligned=False,
+                            corrected=False)
+    if not (found.angle_deg >= settings.min_turn_deg and found.gain >= settings.min_gain):
+        return found
+    spread = _mesh_spread(scene, img, frame_pose, turn, settings, edges)
+    one_turn = spread <= settings.mesh_tolerance_deg
+    return replace(found, mesh_spread_deg=spread, one_turn=one_turn, misaligned=True,
+                   corrected=one_turn and not at_edge and settings.mode == "correct")
+
+
+def _mesh_spread(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str], np.ndarray], turn_deg: np.ndarray,
+                 settings: ExtrinsicsConfig, edges: EdgeImage) -> float:
+    """The largest difference [deg] about the optical x and y axes between the joint turn
+    ``turn_deg`` and the turn that lines up each environment mesh on its own (``refine_turn``
+    from the joint one), over the meshes with at least a quarter of ``min_samples`` contour
+    samples at the joint turn (0 when none has)."""
+    spread = 0.0
+    for part in outlined(scene):
+        def score(turns_rad, part=part):
+            return scene_outline_score(scene, img, frame_pose, turns_rad, settings, edges, [part])[0]
+
+        value, n = scene_outline_score(scene, img, frame_pose, np.radians(turn_deg)[None], settings, edges, [part])
+        if 4 * n[0] < settings.min_samples:
+            continue
+        own, _ = refine_turn(score, turn_deg, float(value[0]), settings)
+        spread = max(spread, float(np.max(np.abs(own[:2] - turn_deg[:2]))))
+    return spread
+
+
+def corrected_frame(frame: Frame, alignments: dict[str, CameraAlignment | None]) -> Frame:
+    """``frame`` with every camera the check corrected at its turned pose (``corrected_pose``);
+    the frame itself when there is none."""
+    fixed = {name: replace(img, T_world_sensor=alignments[name].corrected_pose(img.T_world_sensor))
+             for name, img in frame.cameras.items()
+             if alignments.get(name) is not None and alignments[name].corrected}
+    return replace(frame, cameras={**frame.cameras, **fixed}) if fixed else frame
