@@ -455,6 +455,9 @@ class ExtrinsicsConfig:
         0.0, 30.0, lo_open=True, doc="the turns searched about each optical axis, +- [deg]"))
     step_deg: float = field(default=0.25, metadata=_rng(
         0.0, 10.0, lo_open=True, doc="the search grid's step about each axis [deg]"))
+    coarse_downsample: int = field(default=4, metadata=_rng(
+        1, 64, doc="a second start searches all three axes at this many times step_deg, on the image downsampled "
+                   "this many times (and its blur this many times wider); 1: at full resolution"))
     min_step_deg: float = field(default=0.01, metadata=_rng(
         0.0, 10.0, lo_open=True, doc="the local refinement halves its step down to this [deg]"))
     min_turn_deg: float = field(default=0.3, metadata=_rng(
@@ -463,10 +466,10 @@ class ExtrinsicsConfig:
         0.0, 1.0, lo_open=True, doc="... and adds at least this share of its outline score"))
     min_samples: int = field(default=200, metadata=_rng(
         1, 10_000_000, doc="contour samples of the known scene in the image needed to judge a camera"))
-    mesh_tolerance_deg: float = field(default=0.3, metadata=_rng(
+    mesh_tolerance_deg: float = field(default=0.35, metadata=_rng(
         0.0, 30.0, doc="a misaligned camera is corrected only when each environment mesh (with a quarter of "
-                       "min_samples) lines up on its own within this of the joint turn about the optical x and y axes "
-                       "[deg]: else more than a turn is off"))
+                       "min_samples) lines up on its own with a turn that moves its pixels less than this from where "
+                       "the joint turn puts them (RMS, as an angle) [deg]: else more than a turn is off"))
     background_factor: float = field(default=2.0, metadata=_rng(
         0.0, 100.0, doc="a contour sample counts for the alignment above this many times the image's median "
                         "gradient, against it below"))

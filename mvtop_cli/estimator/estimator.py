@@ -325,7 +325,8 @@ class Estimator:
         misaligned = [a for a in self.extrinsics.values() if a is not None and a.misaligned]
         if misaligned:
             flags.append("camera_extrinsics")
-            # a camera left turned (extrinsics.mode: warn, or a turn beyond the searched range) pulls the estimate
+            # a camera left turned (extrinsics.mode: warn, a turn at the searched range's edge, or meshes that do not
+            # agree on one turn) pulls the estimate
             suspect = suspect or any(a.suspect for a in misaligned)
 
         self.settled = not _UNSETTLED.intersection(flags)

@@ -13,9 +13,11 @@ the edge minus ``background_factor`` times the image's typical gradient: the con
 log-likelihood ratio of "an edge here" (``estimator/edges.py``), for the scene instead of the
 part. ``align_camera`` turns the camera about its optical centre (a rotation ``turn`` in its
 optical frame, ``T_sensor_mesh -> Exp(turn) @ T_sensor_mesh``) over a grid of +-``range_deg``
-about x and y, then about z, then refines locally down to ``min_step_deg``, and keeps the turn
-that scores best. A camera is misaligned when that turn is at least ``min_turn_deg`` and raises
-the score by at least ``min_gain`` of its best value (``CameraAlignment.misaligned``).
+about x and y, then about z, and over a coarser grid about all three axes on the image
+downsampled ``coarse_downsample`` times, then refines the better start locally down to
+``min_step_deg``, and keeps the turn that scores best. A camera is misaligned when that turn is
+at least ``min_turn_deg`` and raises the score by at least ``min_gain`` of its best value
+(``CameraAlignment.misaligned``).
 
 What follows (``extrinsics.mode``): ``correct`` uses the camera at ``T_world_sensor @
 Exp(turn)^-1`` for the whole run and says so (warning ``camera_extrinsics``); ``warn`` only says
@@ -24,12 +26,12 @@ spread about the estimate). A turn at the edge of the searched range is never co
 true one may lie beyond it, so the run is reported as suspect whatever the mode.
 
 A turn is corrected only where it is the whole error: each environment mesh with at least a
-quarter of ``min_samples`` contour samples is lined up on its own, from the joint turn, and each
-one's own turn must lie within ``mesh_tolerance_deg`` of the joint turn about the optical x and y
-axes (those move the image; a small mesh pins the roll about z poorly). A camera moved along its
-optical axis scales the scene about the image centre: a turn then lines up the far board's outline
-and leaves the fingers, near the centre, 0.6-1.4 deg away (camera moved 5-10 mm, cube sample),
-where that turn would put the part 6-12 pixels off. Such a camera is reported as with ``warn``
+quarter of ``min_samples`` contour samples is lined up on its own, from the joint turn, and its
+own turn must move the pixels it covers by less than ``mesh_tolerance_deg`` (RMS, as an angle)
+from where the joint turn puts them (``_mesh_spread``). A camera moved along its optical axis
+scales the scene about the image centre: a turn then lines up the far board's outline and leaves
+the fingers, near the centre, wanting theirs 0.6-1.5 deg away (camera moved 5-10 mm, cube), where
+that turn would put the part 6-12 pixels off. Such a camera is reported as with ``warn``
 and not corrected (``CameraAlignment.one_turn``). A camera moved across its axis is much like a
 turn at the scene's depth, and the meshes agree on one.
 """
@@ -62,9 +64,9 @@ class CameraAlignment:
     ``score_turned`` the scene's outline score [gradient units above the background, summed
     over samples] with the recorded extrinsics and with the turn; ``samples`` the contour
     samples read with the recorded extrinsics; ``at_edge`` the turn lies on the searched
-    range's edge (the true one may be larger); ``mesh_spread_deg`` the largest difference about
-    the optical x and y axes between a mesh's own best turn and the joint one [deg] (None when
-    not measured: the camera is not misaligned); ``one_turn`` that spread is within
+    range's edge (the true one may be larger); ``mesh_spread_deg`` how far apart the meshes want
+    the camera turned (``_mesh_spread``) [deg] (None when not measured: the camera is not
+    misaligned); ``one_turn`` that spread is within
     ``extrinsics.mesh_tolerance_deg``, so one turn corrects the whole error; ``misaligned`` the
     check's verdict; ``corrected`` the run uses the turned camera (``extrinsics.mode: correct``)."""
 
@@ -148,7 +150,7 @@ def turned_camera(T_world_sensor: np.ndarray, turn_deg) -> np.ndarray:
 
 def scene_outline_score(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str], np.ndarray],
                         turns_rad: np.ndarray, settings: ExtrinsicsConfig, edges: EdgeImage | None = None,
-                        parts: list[EnvPart] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        parts: list[EnvPart] | None = None, roi: Roi | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The environment meshes' outline score in camera image ``img`` with the camera turned by
     each rotation vector of ``turns_rad`` (N, 3) [rad, the camera's optical frame].
 
@@ -156,13 +158,15 @@ def scene_outline_score(scene: SceneModel, img: SensorImage, frame_pose: Callabl
     frames. Every occluding environment mesh (``environment[i].occlude``, the ones the renderer
     holds; or those of ``parts``) is read, without occlusion between them. Returns (score (N,) [CIE Lab units per pixel
     above ``background_factor`` times the image's median gradient, summed over the samples],
-    samples (N,) int: the contour samples inside the image)."""
-    edges = edges if edges is not None else EdgeImage.of(img.image, Roi.full(img.camera), settings.blur_sigma_px)
+    samples (N,) int: the contour samples inside the image). ``roi``: the whole image, possibly
+    downsampled, that ``edges`` were made for (default: at full resolution), samples every
+    ``spacing_px`` of its pixels."""
+    roi = roi if roi is not None else Roi.full(img.camera)
+    edges = edges if edges is not None else EdgeImage.of(img.image, roi, settings.blur_sigma_px)
     level = settings.background_factor * edges.background
     turns = np.repeat(np.eye(4)[None], len(turns_rad), axis=0)
     turns[:, :3, :3] = se3.rotvec_to_matrix(np.asarray(turns_rad, dtype=np.float64).reshape(-1, 3))
     T_sensor_world = se3.invert(img.T_world_sensor)
-    roi = Roi.full(img.camera)
     score = np.zeros(len(turns))
     samples = np.zeros(len(turns), dtype=np.int64)
     for part in outlined(scene) if parts is None else parts:
@@ -180,28 +184,40 @@ def outlined(scene: SceneModel) -> list[EnvPart]:
     return [part for part in scene.parts if part.spec.occlude]
 
 
-def align_camera(score: Callable[[np.ndarray], np.ndarray],
-                 settings: ExtrinsicsConfig) -> tuple[np.ndarray, float, bool]:
-    """The turn (3,) [deg] that maximises ``score(turns_rad (N, 3)) -> (N,)``: a grid over
-    +-``range_deg`` about x and y at ``step_deg`` (z at 0), then about z at the best x, y, then
-    a local search of the 26 neighbours, moving while one scores better and halving the step
-    down to ``min_step_deg``. Returns the turn, its score and whether it lies on the range's edge.
-    The recorded extrinsics (turn 0) are a grid point, so the best turn never scores below them."""
+def align_camera(score: Callable[[np.ndarray], np.ndarray], settings: ExtrinsicsConfig,
+                 coarse: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, float, bool]:
+    """The turn (3,) [deg] that maximises ``score(turns_rad (N, 3)) -> (N,)``. Two starts: a grid
+    over +-``range_deg`` about x and y at ``step_deg`` (z at 0), then about z at the best x, y;
+    and, with ``coarse`` (the score on a downsampled image, ``coarse_downsample``), a grid about
+    all three axes at ``coarse_downsample`` times the step, then a full-resolution grid of +-2
+    steps about its best (a roll the first start's grid leaves out can line a cluttered scene up
+    elsewhere). From the better of the two, a local search of the 26 neighbours, moving while one
+    scores better and halving the step down to ``min_step_deg``. Returns the turn, its score and
+    whether it lies on the range's edge. The recorded extrinsics (turn 0) are a grid point of
+    both and win ties, so the best turn never scores below them."""
     r, step = settings.range_deg, settings.step_deg
-    axis = np.linspace(-r, r, 2 * int(round(r / step)) + 1)
 
-    def best_of(turns_deg: np.ndarray) -> tuple[np.ndarray, float]:
-        values = score(np.radians(turns_deg))
-        k = int(np.argmax(values))  # the first of equals: the grids list turn 0 before its equals' mirror
+    def grid(half_width: float, spacing: float, axes: int) -> np.ndarray:
+        axis = np.linspace(-half_width, half_width, 2 * int(round(half_width / spacing)) + 1)
+        g = np.stack(np.meshgrid(*[axis] * axes, indexing="ij"), axis=-1).reshape(-1, axes)
+        g = np.concatenate([g, np.zeros((len(g), 3 - axes))], axis=1)
+        return np.concatenate([np.zeros((1, 3)), g])  # turn 0 first: the first of equals wins
+
+    def best_of(turns_deg: np.ndarray, fn=score) -> tuple[np.ndarray, float]:
+        turns_deg = np.clip(turns_deg, -r, r)
+        values = fn(np.radians(turns_deg))
+        k = int(np.argmax(values))
         return turns_deg[k], float(values[k])
 
-    gx, gy = np.meshgrid(axis, axis, indexing="ij")
-    grid = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
-    grid = np.concatenate([np.zeros((1, 3)), grid])  # turn 0 first: it wins ties
-    best, value = best_of(grid)
-    line = np.repeat(best[None], len(axis) + 1, axis=0)
-    line[1:, 2] = axis
+    best, _ = best_of(grid(r, step, 2))
+    line = np.repeat(best[None], 2 * int(round(r / step)) + 2, axis=0)
+    line[1:, 2] = np.linspace(-r, r, len(line) - 1)
     best, value = best_of(line)
+    if coarse is not None:
+        found, _ = best_of(grid(r, settings.coarse_downsample * step, 3), coarse)
+        found, v = best_of(found + grid(2 * step, step, 3)[1:])
+        if v > value:
+            best, value = found, v
     best, value = refine_turn(score, best, value, settings)
     return best, value, bool(np.any(np.abs(best) >= r - step / 2.0))
 
@@ -238,7 +254,16 @@ def check_camera(scene: SceneModel, name: str, img: SensorImage, frame_index: in
     recorded, samples = scene_outline_score(scene, img, frame_pose, np.zeros((1, 3)), settings, edges)
     if samples[0] < settings.min_samples:
         return None
-    turn, turned, at_edge = align_camera(score, settings)
+    k = settings.coarse_downsample
+    small = None if img.camera.width % k or img.camera.height % k else Roi(0, 0, img.camera.width,
+                                                                           img.camera.height, 1.0 / k)
+    if small is not None:
+        small_edges = EdgeImage.of(img.image, small, k * settings.blur_sigma_px)
+
+        def coarse(turns_rad: np.ndarray) -> np.ndarray:
+            return scene_outline_score(scene, img, frame_pose, turns_rad, settings, small_edges, roi=small)[0]
+
+    turn, turned, at_edge = align_camera(score, settings, None if small is None else coarse)
     found = CameraAlignment(name, frame_index, tuple(float(v) for v in turn), float(recorded[0]), turned,
                             int(samples[0]), at_edge, mesh_spread_deg=None, one_turn=True, misaligned=False,
                             corrected=False)
@@ -252,10 +277,18 @@ def check_camera(scene: SceneModel, name: str, img: SensorImage, frame_index: in
 
 def _mesh_spread(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str], np.ndarray], turn_deg: np.ndarray,
                  settings: ExtrinsicsConfig, edges: EdgeImage) -> float:
-    """The largest difference [deg] about the optical x and y axes between the joint turn
-    ``turn_deg`` and the turn that lines up each environment mesh on its own (``refine_turn``
-    from the joint one), over the meshes with at least a quarter of ``min_samples`` contour
-    samples at the joint turn (0 when none has)."""
+    """How far apart the environment meshes want the camera turned [deg]: for each mesh with at
+    least a quarter of ``min_samples`` contour samples at the joint turn ``turn_deg``, the turn
+    that lines it up on its own (``refine_turn`` from the joint one), and how far that moves the
+    image where the mesh is (the RMS displacement over the pixels it covers at the joint turn,
+    as an angle at the focal length: a roll a small mesh pins poorly, compensated by a pan, moves
+    its pixels little); the largest over the meshes (0 when none has enough samples)."""
+    roi = Roi.full(img.camera)
+    K = np.asarray(img.camera.K, dtype=np.float64)
+    R_joint = se3.rotvec_to_matrix(np.radians(turn_deg))
+    T_joint = np.eye(4)
+    T_joint[:3, :3] = R_joint
+    T_sensor_world = se3.invert(img.T_world_sensor)
     spread = 0.0
     for part in outlined(scene):
         def score(turns_rad, part=part):
@@ -265,7 +298,17 @@ def _mesh_spread(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str]
         if 4 * n[0] < settings.min_samples:
             continue
         own, _ = refine_turn(score, turn_deg, float(value[0]), settings)
-        spread = max(spread, float(np.max(np.abs(own[:2] - turn_deg[:2]))))
+        T_world_frame = np.eye(4) if part.spec.frame == scene.cfg.frames.world else frame_pose(part.spec.frame)
+        T_sensor_mesh = T_joint @ T_sensor_world @ T_world_frame @ part.T_frame_mesh
+        rows, cols = np.nonzero(scene.renderer.render_masks(f"env:{part.spec.name}", T_sensor_mesh[None],
+                                                            img.camera, roi)[0])
+        if len(rows) == 0:
+            continue
+        pixels = np.stack([cols, rows, np.ones_like(cols)]).astype(np.float64)  # (3, P) homogeneous
+        rays = (se3.rotvec_to_matrix(np.radians(own)) @ R_joint.T) @ (np.linalg.inv(K) @ pixels)
+        moved = K @ rays
+        shift_px = np.sqrt(np.mean(np.sum((moved[:2] / moved[2] - pixels[:2]) ** 2, axis=0)))
+        spread = max(spread, float(np.degrees(np.arctan(shift_px / K[0, 0]))))
     return spread
 
 

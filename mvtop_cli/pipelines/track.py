@@ -100,10 +100,10 @@ def extrinsics_report(last: FrameEstimate) -> dict:
     image (``estimator/extrinsics.py``): the frame, the turn [deg] about the camera's optical x,
     y, z axes that lines the known scene up with the image best, its angle, the outline score
     with the recorded extrinsics and with the turn, the share the turn adds, the contour samples
-    read, the largest difference between a mesh's own turn and the joint one (``mesh_spread_deg``,
-    null unless misaligned) and the verdict (``misaligned``, ``corrected``, ``one_turn``,
-    ``at_edge``); null where the known scene
-    gave too few samples to judge by. Empty when the check is off or no camera was seen."""
+    read, how far apart the meshes want the camera turned (``mesh_spread_deg``, null unless
+    misaligned) and the verdict (``misaligned``, ``corrected``, ``one_turn``,
+    ``at_edge``); null where the known scene gave too few samples to judge by. Empty when the
+    check is off or no camera was seen."""
     out = {}
     for name, a in getattr(last, "extrinsics", {}).items():
         out[name] = None if a is None else {
