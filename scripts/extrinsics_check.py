@@ -74,6 +74,28 @@ def check_grasp(obj: str, seed: int, scene: str, turn: tuple[float, float] | Non
     return out
 
 
+def resumable_rows(path: Path, objects: str, seeds: str, make_row) -> dict:
+    """The rows of ``path`` (JSON lines, gzip-compressed when it ends in .gz) by (object, seed),
+    with ``make_row(object, seed)`` appended for every object of ``objects`` and seed of ``seeds``
+    ("A-B") not there yet, seed by seed."""
+    opener = gzip.open if path.suffix == ".gz" else open
+    rows = {}
+    if path.exists():
+        with opener(path, "rt") as f:
+            for line in f:
+                r = json.loads(line)
+                rows[(r["object"], r["seed"])] = r
+    a, b = (int(x) for x in seeds.split("-"))
+    for seed in range(a, b + 1):
+        for obj in objects.split(","):
+            if (obj, seed) in rows:
+                continue
+            rows[(obj, seed)] = row = make_row(obj, seed)
+            with opener(path, "at") as f:
+                f.write(json.dumps(row) + "\n")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", required=True, choices=("default", "hard"))
@@ -84,23 +106,8 @@ def main() -> None:
     ap.add_argument("--turn-deg", default="1,3")
     args = ap.parse_args()
     turn = tuple(float(x) for x in args.turn_deg.split(",")) if args.turn else None
-    opener = gzip.open if args.rows.suffix == ".gz" else open
-    rows = {}
-    if args.rows.exists():
-        with opener(args.rows, "rt") as f:
-            for line in f:
-                r = json.loads(line)
-                rows[(r["object"], r["seed"])] = r
-    a, b = (int(x) for x in args.seeds.split("-"))
-    for seed in range(a, b + 1):
-        for obj in args.objects.split(","):
-            if (obj, seed) in rows:
-                continue
-            cameras = check_grasp(obj, seed, args.scene, turn)
-            row = {"object": obj, "seed": seed, "scene": args.scene, "cameras": cameras}
-            rows[(obj, seed)] = row
-            with opener(args.rows, "at") as f:
-                f.write(json.dumps(row) + "\n")
+    rows = resumable_rows(args.rows, args.objects, args.seeds, lambda obj, seed: {
+        "object": obj, "seed": seed, "scene": args.scene, "cameras": check_grasp(obj, seed, args.scene, turn)})
     cams = [c for r in rows.values() for c in r["cameras"].values()]
     rec = [c["recorded"] for c in cams]
     judged = [c for c in rec if c["judged"]]

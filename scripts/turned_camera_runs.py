@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from extrinsics_check import random_turn
+from extrinsics_check import random_turn, resumable_rows
 from perturb_extrinsics import perturb_log
 
 from mvtop_cli.config import load_config
@@ -63,24 +63,13 @@ def main() -> None:
     args = ap.parse_args()
     turn = tuple(float(x) for x in args.turn_deg.split(","))
     settings = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.settings)}
-    opener = gzip.open if args.rows.suffix == ".gz" else open
-    rows = {}
-    if args.rows.exists():
-        with opener(args.rows, "rt") as f:
-            for line in f:
-                r = json.loads(line)
-                rows[(r["object"], r["seed"])] = r
-    a, b = (int(x) for x in args.seeds.split("-"))
-    for seed in range(a, b + 1):
-        for obj in args.objects.split(","):
-            if (obj, seed) in rows:
-                continue
-            rows[(obj, seed)] = row = run_grasp(obj, seed, turn, settings)
-            with opener(args.rows, "at") as f:
-                f.write(json.dumps(row) + "\n")
-            print(f"{obj} {seed}: {row['camera']} turned {np.linalg.norm(row['true_turn_deg']):.2f} deg, "
-                  f"{row['insertion_error_mm'] / row['clearance_mm']:.2f} clearances, {row['warning_counts']}",
-                  flush=True)
+    def make_row(obj: str, seed: int) -> dict:
+        row = run_grasp(obj, seed, turn, settings)
+        print(f"{obj} {seed}: {row['camera']} turned {np.linalg.norm(row['true_turn_deg']):.2f} deg, "
+              f"{row['insertion_error_mm'] / row['clearance_mm']:.2f} clearances, {row['warning_counts']}", flush=True)
+        return row
+
+    rows = resumable_rows(args.rows, args.objects, args.seeds, make_row)
 
     def tally(name: str, runs: list[tuple[float, bool]]) -> None:
         within = [s for r, s in runs if r <= 1.0]
