@@ -457,7 +457,8 @@ class ExtrinsicsConfig:
         0.0, 10.0, lo_open=True, doc="the search grid's step about each axis [deg]"))
     coarse_downsample: int = field(default=4, metadata=_rng(
         1, 64, doc="a second start searches all three axes at this many times step_deg, on the image downsampled "
-                   "this many times (and its blur this many times wider); 1: at full resolution"))
+                   "this many times (and its blur this many times wider); 1: at full resolution; none when the "
+                   "image's width or height is not a multiple of it"))
     min_step_deg: float = field(default=0.01, metadata=_rng(
         0.0, 10.0, lo_open=True, doc="the local refinement halves its step down to this [deg]"))
     min_turn_deg: float = field(default=0.3, metadata=_rng(
