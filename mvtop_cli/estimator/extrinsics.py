@@ -49,7 +49,7 @@ from ..geometry import se3
 from ..records import Frame, SensorImage
 from ..render.roi import Roi
 from .edges import EdgeImage
-from .scene import EnvPart, SceneModel
+from .scene import SceneModel
 
 # The local refinement stops after this many moves (it moves at most range / step per scale).
 _MAX_MOVES = 200
@@ -150,38 +150,33 @@ def turned_camera(T_world_sensor: np.ndarray, turn_deg) -> np.ndarray:
 
 def scene_outline_score(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str], np.ndarray],
                         turns_rad: np.ndarray, settings: ExtrinsicsConfig, edges: EdgeImage | None = None,
-                        parts: list[EnvPart] | None = None, roi: Roi | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        meshes: list[tuple[str, np.ndarray]] | None = None,
+                        roi: Roi | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The environment meshes' outline score in camera image ``img`` with the camera turned by
     each rotation vector of ``turns_rad`` (N, 3) [rad, the camera's optical frame].
 
-    ``frame_pose(tf_frame)`` gives ``T_world_frame`` at the image's stamp for meshes on moving
-    frames. Every occluding environment mesh (``environment[i].occlude``, the ones the renderer
-    holds; or those of ``parts``) is read, without occlusion between them. Returns (score (N,) [CIE Lab units per pixel
-    above ``background_factor`` times the image's median gradient, summed over the samples],
-    samples (N,) int: the contour samples inside the image). ``roi``: the whole image, possibly
-    downsampled, that ``edges`` were made for (default: at full resolution), samples every
-    ``spacing_px`` of its pixels."""
+    ``meshes``: ``(mesh_id, T_sensor_mesh)`` pairs with the recorded extrinsics, by default every
+    occluding environment mesh (``SceneModel.occluders``: ``environment[i].occlude``, the ones the
+    renderer holds; ``frame_pose(tf_frame)`` gives ``T_world_frame`` at the image's stamp for
+    meshes on moving frames), read without occlusion between them. Returns (score (N,) [CIE Lab
+    units per pixel above ``background_factor`` times the image's median gradient, summed over
+    the samples], samples (N,) int: the contour samples inside the image). ``roi``: the whole
+    image, possibly downsampled, that ``edges`` were made for (default: at full resolution),
+    samples every ``spacing_px`` of its pixels."""
     roi = roi if roi is not None else Roi.full(img.camera)
     edges = edges if edges is not None else EdgeImage.of(img.image, roi, settings.blur_sigma_px)
+    meshes = meshes if meshes is not None else scene.occluders(img.T_world_sensor, frame_pose)
     level = settings.background_factor * edges.background
     turns = np.repeat(np.eye(4)[None], len(turns_rad), axis=0)
     turns[:, :3, :3] = se3.rotvec_to_matrix(np.asarray(turns_rad, dtype=np.float64).reshape(-1, 3))
-    T_sensor_world = se3.invert(img.T_world_sensor)
     score = np.zeros(len(turns))
     samples = np.zeros(len(turns), dtype=np.int64)
-    for part in outlined(scene) if parts is None else parts:
-        T_world_frame = np.eye(4) if part.spec.frame == scene.cfg.frames.world else frame_pose(part.spec.frame)
-        T_sensor_mesh = T_sensor_world @ T_world_frame @ part.T_frame_mesh
-        s, n = scene.renderer.contour_gradient(f"env:{part.spec.name}", turns @ T_sensor_mesh, img.camera, roi,
-                                               edges.gx, edges.gy, None, settings.spacing_px, 0.0)
+    for mesh_id, T_sensor_mesh in meshes:
+        s, n = scene.renderer.contour_gradient(mesh_id, turns @ T_sensor_mesh, img.camera, roi, edges.gx, edges.gy,
+                                               None, settings.spacing_px, 0.0)
         score += s - level * n
         samples += n
     return score, samples
-
-
-def outlined(scene: SceneModel) -> list[EnvPart]:
-    """The environment meshes the check reads: the occluding ones, which the renderer holds."""
-    return [part for part in scene.parts if part.spec.occlude]
 
 
 def align_camera(score: Callable[[np.ndarray], np.ndarray], settings: ExtrinsicsConfig,
@@ -288,20 +283,18 @@ def _mesh_spread(scene: SceneModel, img: SensorImage, frame_pose: Callable[[str]
     R_joint = se3.rotvec_to_matrix(np.radians(turn_deg))
     T_joint = np.eye(4)
     T_joint[:3, :3] = R_joint
-    T_sensor_world = se3.invert(img.T_world_sensor)
     spread = 0.0
-    for part in outlined(scene):
-        def score(turns_rad, part=part):
-            return scene_outline_score(scene, img, frame_pose, turns_rad, settings, edges, [part])[0]
+    for mesh in scene.occluders(img.T_world_sensor, frame_pose):
+        def score(turns_rad, mesh=mesh):
+            return scene_outline_score(scene, img, frame_pose, turns_rad, settings, edges, [mesh])[0]
 
-        value, n = scene_outline_score(scene, img, frame_pose, np.radians(turn_deg)[None], settings, edges, [part])
+        value, n = scene_outline_score(scene, img, frame_pose, np.radians(turn_deg)[None], settings, edges, [mesh])
         if 4 * n[0] < settings.min_samples:
             continue
         own, _ = refine_turn(score, turn_deg, float(value[0]), settings)
-        T_world_frame = np.eye(4) if part.spec.frame == scene.cfg.frames.world else frame_pose(part.spec.frame)
-        T_sensor_mesh = T_joint @ T_sensor_world @ T_world_frame @ part.T_frame_mesh
-        rows, cols = np.nonzero(scene.renderer.render_masks(f"env:{part.spec.name}", T_sensor_mesh[None],
-                                                            img.camera, roi)[0])
+        mesh_id, T_sensor_mesh = mesh
+        rows, cols = np.nonzero(scene.renderer.render_masks(mesh_id, (T_joint @ T_sensor_mesh)[None], img.camera,
+                                                            roi)[0])
         if len(rows) == 0:
             continue
         pixels = np.stack([cols, rows, np.ones_like(cols)]).astype(np.float64)  # (3, P) homogeneous
