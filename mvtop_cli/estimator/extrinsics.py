@@ -186,7 +186,8 @@ def align_camera(score: Callable[[np.ndarray], np.ndarray], settings: Extrinsics
     and, with ``coarse`` (the score on a downsampled image, ``coarse_downsample``), a grid about
     all three axes at ``coarse_downsample`` times the step, then a full-resolution grid of +-2
     steps about its best (a roll the first start's grid leaves out can line a cluttered scene up
-    elsewhere). From the better of the two, a local search of the 26 neighbours, moving while one
+    elsewhere; alone, it misses some turns the x/y grid finds: README, Cameras whose extrinsics are
+    off). From the better of the two, a local search of the 26 neighbours, moving while one
     scores better and halving the step down to ``min_step_deg``. Returns the turn, its score and
     whether it lies on the range's edge. The recorded extrinsics (turn 0) are a grid point of
     both and win ties, so the best turn never scores below them."""
