@@ -189,8 +189,9 @@ def align_camera(score: Callable[[np.ndarray], np.ndarray], settings: Extrinsics
     elsewhere; alone, it misses some turns the x/y grid finds: README, Cameras whose extrinsics are
     off). From the better of the two, a local search of the 26 neighbours, moving while one
     scores better and halving the step down to ``min_step_deg``. Returns the turn, its score and
-    whether it lies on the range's edge. The recorded extrinsics (turn 0) are a grid point of
-    both and win ties, so the best turn never scores below them."""
+    whether it lies on the range's edge. The recorded extrinsics (turn 0) are a grid point of the
+    first start and win its ties, and the second replaces it only when it scores higher, so the
+    best turn never scores below them."""
     r, step = settings.range_deg, settings.step_deg
 
     def grid(half_width: float, spacing: float, axes: int) -> np.ndarray:
