@@ -7,9 +7,13 @@ before the warning existed count too. Far off: final insertion error above FAR x
 the within-clearance runs flagged (false alarms), at each --thresholds value.
 
 A source is a benchmark folder (its runs/), a folder of run folders (scripts/config_ablation.py's
-output) or a .jsonl.gz written by --export (one line per run: source, run, method, the insertion
-error over the clearance, the per-frame pinned flags), which keeps what this needs from run
-folders that are not kept (benchmarks/accuracy/suspect/).
+output), a .jsonl.gz written by --export (one line per run: source, run, method, the insertion
+error over the clearance, the per-frame pinned flags, and ``other``: whether a cause beside the
+open frames raises the warning anyway), which keeps what this needs from run folders that are not
+kept (benchmarks/accuracy/suspect/), or a benchmark's results.jsonl.gz whose runs kept
+``benchmark.suspect`` (summary.json ``suspect``: the count of open frames stands for the flags,
+whose order the fraction does not need). A run with another cause (a rival mode, sensors that
+disagree, a camera left turned) counts as flagged at every threshold.
 Usage: .venv/bin/python scripts/suspect_check.py SOURCE [SOURCE ...] [--thresholds 0.3,0.4,0.5]
        [--far 5] [--export OUT.jsonl.gz]"""
 import argparse
@@ -25,7 +29,10 @@ def records(source: Path) -> list[dict]:
     """One record per finished run of ``source``."""
     if source.suffix == ".gz":
         with gzip.open(source, "rt") as f:
-            return [json.loads(line) for line in f]
+            lines = [json.loads(line) for line in f]
+        if lines and "benchmark" in lines[0]:  # a benchmark's results
+            return [from_result(source, r) for r in lines if "suspect" in r["benchmark"]]
+        return lines
     base = source / "runs" if (source / "runs").is_dir() else source
     out = []
     for run in sorted(base.iterdir()):
@@ -36,8 +43,18 @@ def records(source: Path) -> list[dict]:
         out.append({"source": str(source), "run": run.name, "method": run.name.rsplit("_", 1)[1],
                     "ratio": report["final"]["insertion_error_mm"] / report["clearance_mm"],
                     "pinned": [r[2] is not None and r[3] is not None
-                               for r in summary["evidence"]["per_frame"]["rows"]]})
+                               for r in summary["evidence"]["per_frame"]["rows"]],
+                    "other": bool(set(summary.get("suspect", {}).get("causes", [])) - {"unpinned"})})
     return out
+
+
+def from_result(source: Path, row: dict) -> dict:
+    """The record of one line of a benchmark's results.jsonl.gz that kept ``benchmark.suspect``."""
+    b, s = row["benchmark"], row["benchmark"]["suspect"]
+    return {"source": str(source), "run": f"{b['object']}_{b['seed']}_{b['method']}", "method": b["method"],
+            "ratio": row["final"]["insertion_error_mm"] / row["clearance_mm"],
+            "pinned": [False] * s["unpinned_frames"] + [True] * (s["evidence_frames"] - s["unpinned_frames"]),
+            "other": bool(set(s["causes"]) - {"unpinned"})}
 
 
 def main() -> None:
@@ -64,7 +81,7 @@ def main() -> None:
                     if kind:
                         counts[m][kind] += 1
                         for t in thresholds:
-                            counts[m][(kind, t)] += suspect_warning(r["pinned"], t) is not None
+                            counts[m][(kind, t)] += r.get("other", False) or suspect_warning(r["pinned"], t) is not None
             for m, c in sorted(counts.items(), key=lambda kv: (kv[0] == "all", kv[0])):
                 parts = [f"threshold {t:g}: far off flagged {c[('far', t)]} of {c['far']}, "
                          f"within the clearance flagged {c[('within', t)]} of {c['within']}" for t in thresholds]

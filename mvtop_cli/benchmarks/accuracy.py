@@ -120,7 +120,7 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     if method in MODALITY_SETS:
         summary = estimate(log, cfg, run, EstimateOptions(modalities=MODALITY_SETS[method], num_particles=particles,
                                                           seed=seed))
-        extra = {"warning_counts": summary["warning_counts"]}
+        extra = {"warning_counts": summary["warning_counts"], "suspect": summary["suspect"]}
     else:  # the baseline
         from .baselines.chsel_runner import ChselOptions
         from .baselines.run import BaselineOptions, estimate_chsel
@@ -250,23 +250,47 @@ def suspect_tally(reports: dict[tuple, dict], methods) -> dict:
     off (final insertion error above ``SUSPECT_FAR_FACTOR`` clearances) and of those within the
     clearance (``final.insertable``), how many raised it. Only runs that recorded their warnings
     count (results made before they were recorded, and the baseline, have none); methods without
-    such runs are left out."""
+    such runs are left out. Of the flagged runs that recorded why (``benchmark.suspect``, filter/
+    health.py ``suspect_causes``): ``{kind}_recorded`` how many, ``{kind}_causes`` per cause how
+    many it held in, ``{kind}_alone`` per cause how many it alone raised."""
     out: dict = {}
     for method in methods:
         tally = {"runs": 0, "far_off": 0, "far_off_flagged": 0, "within": 0, "within_flagged": 0}
+        for kind in ("far_off", "within"):
+            tally.update({f"{kind}_recorded": 0, f"{kind}_causes": {}, f"{kind}_alone": {}})
         for (_, _, m), r in sorted(reports.items()):
-            counts, clearance, f = r.get("benchmark", {}).get("warning_counts"), r.get("clearance_mm"), r["final"]
-            err = f.get("insertion_error_mm")
+            bench, clearance, f = r.get("benchmark", {}), r.get("clearance_mm"), r["final"]
+            counts, err = bench.get("warning_counts"), f.get("insertion_error_mm")
             if m != method or counts is None or not clearance or err is None:
                 continue
             flagged = counts.get("suspect_estimate", 0) > 0
+            causes = bench.get("suspect", {}).get("causes") if flagged else None
             tally["runs"] += 1
             for kind, hit in (("far_off", err > SUSPECT_FAR_FACTOR * clearance), ("within", bool(f["insertable"]))):
                 tally[kind] += hit
                 tally[f"{kind}_flagged"] += hit and flagged
+                if hit and causes is not None:
+                    tally[f"{kind}_recorded"] += 1
+                    for c in causes:
+                        tally[f"{kind}_causes"][c] = tally[f"{kind}_causes"].get(c, 0) + 1
+                    if len(causes) == 1:
+                        tally[f"{kind}_alone"][causes[0]] = tally[f"{kind}_alone"].get(causes[0], 0) + 1
         if tally["runs"]:
             out[method] = tally
     return out
+
+
+def _cause_words(t: dict, kind: str) -> str:
+    """`` (why: rival_mode 3, unpinned 2 (alone 1); 5 of 6 recorded)`` for the flagged runs of
+    ``kind`` that recorded their causes (``suspect_tally``); empty when none did."""
+    n = t.get(f"{kind}_recorded", 0)
+    if not n:
+        return ""
+    causes, alone = t[f"{kind}_causes"], t[f"{kind}_alone"]
+    words = ", ".join(f"{c} {causes[c]}" + (f" (alone {alone[c]})" if alone.get(c) else "")
+                      for c in sorted(causes, key=lambda c: (-causes[c], c)))
+    of = "" if n == t[f"{kind}_flagged"] else f"; {n} of {t[f'{kind}_flagged']} recorded"
+    return f" (why: {words}{of})"
 
 
 def figure_svgs(summary: dict) -> list[str]:
@@ -399,6 +423,7 @@ def format_table(summary: dict) -> str:
         lines += ["", f"## suspect_estimate warnings (far off: final insertion error above {SUSPECT_FAR_FACTOR:g} "
                   "clearances)", ""]
         for method, t in summary["suspect"].items():
-            lines.append(f"- {method}: far off {t['far_off_flagged']} flagged of {t['far_off']}; within the "
-                         f"clearance {t['within_flagged']} flagged of {t['within']} ({t['runs']} runs)")
+            lines.append(f"- {method}: far off {t['far_off_flagged']} flagged of {t['far_off']}"
+                         f"{_cause_words(t, 'far_off')}; within the clearance {t['within_flagged']} flagged of "
+                         f"{t['within']}{_cause_words(t, 'within')} ({t['runs']} runs)")
     return "\n".join(lines) + "\n"

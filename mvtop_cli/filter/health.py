@@ -357,6 +357,27 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
     )
 
 
+SUSPECT_CAUSES = ("unpinned", "rival_mode", "sensors_disagree", "camera_extrinsics")
+
+
+def suspect_causes(pinned: list[bool], max_unpinned_fraction: float | None, rivals: list[RivalMode | None],
+                   camera_left_turned: bool) -> dict:
+    """Why a run ends suspect: every reason for its ``suspect_estimate`` record that holds at
+    its end, not only the one its sentence gives (summary.json ``suspect``, kept by the
+    benchmark, so another ``output.suspect_unpinned_fraction`` can be judged from finished runs).
+    ``pinned`` one entry per frame with evidence (``EvidenceReport.pinned``); ``rivals`` the
+    rival mode and the first frame's sensor disagreement still standing (None: none);
+    ``camera_left_turned`` a camera whose extrinsics look off was used as recorded. ``causes``
+    is a subset of ``SUSPECT_CAUSES`` in that order; the record is raised when it is not empty."""
+    open_frames = sum(not p for p in pinned)
+    causes = ["unpinned"] if is_suspect(open_frames, len(pinned), max_unpinned_fraction) else []
+    causes += [k for k in SUSPECT_CAUSES[1:3] if any(r is not None and r.kind == k for r in rivals)]
+    if camera_left_turned:
+        causes.append("camera_extrinsics")
+    return {"raised": bool(causes), "causes": causes, "unpinned_frames": open_frames, "evidence_frames": len(pinned),
+            "unpinned_threshold": max_unpinned_fraction}
+
+
 def warning_lines(warnings: list[dict], frames_processed: int) -> list[str]:
     """One line per kind for the terminal: how many frames (which, up to five) and the
     detail of the worst case (the largest ``ratio`` where records have one, else the first)."""

@@ -10,7 +10,7 @@ import numpy as np
 from ..config import Config, dump_config
 from ..estimator import FrameEstimate
 from ..estimator.evidence import finite_or_none
-from ..filter.health import count_warnings, sensor_report, suspect_warning, warning_lines
+from ..filter.health import count_warnings, sensor_report, suspect_causes, suspect_warning, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.mcap_writer import LogWriter
@@ -23,7 +23,8 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
     """The run's summary.json. ``run_warnings``: warnings not tied to a frame (meshes, units),
     reported with the frames' failure-mode warnings under ``warnings`` (counted per kind in
     ``warning_counts``); ``sensors`` gives each sensor's agreement with the estimate and
-    weight factor (see filter/health.py)."""
+    weight factor, ``suspect`` every reason for the run's ``suspect_estimate`` record that holds
+    at its end (see filter/health.py)."""
     last = results[-1]
     q = se3.to_quat_xyzw(last.T_world_object)
     qe = se3.to_quat_xyzw(last.T_ee_object)
@@ -35,9 +36,9 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
             flags[fl] = flags.get(fl, 0) + 1
         warnings.extend(r.warnings)
         agreement.append((r.index, getattr(r, "sensor_iou", {})))
-    suspect = suspect_warning([r.evidence.pinned for r in results if r.evidence is not None],
-                              cfg.output.suspect_unpinned_fraction,
-                              getattr(last, "rival", None) or getattr(last, "disagreement", None))
+    pinned = [r.evidence.pinned for r in results if r.evidence is not None]
+    rivals = [getattr(last, "rival", None), getattr(last, "disagreement", None)]
+    suspect = suspect_warning(pinned, cfg.output.suspect_unpinned_fraction, rivals[0] or rivals[1])
     left_turned = [a for a in getattr(last, "extrinsics", {}).values() if a is not None and a.suspect]
     if suspect is None and left_turned:
         suspect = left_turned[0].suspect_warning()
@@ -66,6 +67,7 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         "flags": flags,
         "warnings": warnings,
         "warning_counts": count_warnings(warnings),
+        "suspect": suspect_causes(pinned, cfg.output.suspect_unpinned_fraction, rivals, bool(left_turned)),
         "sensors": sensor_report(agreement, warnings),
         "evidence": evidence_report(results),
         "extrinsics": extrinsics_report(last),

@@ -85,8 +85,11 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert rate in first.stdout.split("just before contact")[1]
     assert read_results(out / "results.jsonl.gz")[0]["before_contact"] == before
     # each run keeps the warnings it raised, and the summary says how the suspect_estimate warning fell
-    counts = json.loads((out / "runs" / "conn2_1000_M-TOP" / "summary.json").read_text())["warning_counts"]
-    assert report["benchmark"]["warning_counts"] == counts
+    run_summary = json.loads((out / "runs" / "conn2_1000_M-TOP" / "summary.json").read_text())
+    assert report["benchmark"]["warning_counts"] == run_summary["warning_counts"]
+    # and why it is suspect or not, so another threshold can be judged from the finished runs
+    assert report["benchmark"]["suspect"] == run_summary["suspect"]
+    assert report["benchmark"]["suspect"]["raised"] == ("suspect_estimate" in run_summary["warning_counts"])
     assert summary["suspect"]["M-TOP"]["runs"] == 1
     assert "- M-TOP: far off " in first.stdout
     stamp = result.stat().st_mtime_ns

@@ -100,6 +100,7 @@ def test_the_run_summary_and_track_report_the_disagreement(scene, tmp_path):
     (run,) = [w for w in summary["warnings"] if w["kind"] == "suspect_estimate"]
     assert run["frame"] is None and "'side' alone holds the estimate" in run["detail"]
     assert "(flag sensors_disagree)" in run["detail"]
+    assert "sensors_disagree" in summary["suspect"]["causes"] and summary["suspect"]["raised"] is True
     assert summary["flags"]["sensors_disagree"] == 1
     left_out = summary["evidence"]["leave_one_out"]
     assert left_out["frame"] == 0 and set(left_out["others_gain_nats"]) == {"left", "right", "front", "side"}

@@ -182,12 +182,14 @@ def test_the_estimator_corrects_a_turned_camera_and_reports_it(cube):
     assert summary["extrinsics"]["front"]["corrected"] is True and summary["extrinsics"]["side"]["misaligned"] is False
     assert summary["extrinsics"]["front"]["turn_deg"][1] == pytest.approx(2.0, abs=0.1)
     assert "suspect_estimate" not in summary["warning_counts"]
+    assert summary["suspect"]["raised"] is False and summary["suspect"]["causes"] == []
 
     left = run(dataclasses.replace(cfg, extrinsics=dataclasses.replace(cfg.extrinsics, mode="warn")), (0.0, 2.0, 0.0))
     summary = run_summary(left, cfg, Path("cube.mcap"), 1.0, [])
     assert summary["warning_counts"]["suspect_estimate"] == 1
     suspect = next(w for w in summary["warnings"] if w["kind"] == "suspect_estimate")
     assert "camera 'front'" in suspect["detail"] and "flag camera_extrinsics" in suspect["detail"]
+    assert "camera_extrinsics" in summary["suspect"]["causes"] and summary["suspect"]["raised"] is True
     # the grasp prior's spread (3 mm half-width, uniform): a standard deviation of at least 3 / sqrt(3) mm
     def widest_m(frame):
         return np.sqrt(np.max(np.diag(frame.covariance)[:3]))

@@ -11,6 +11,7 @@ import numpy as np
 from mvtop_cli.config import load_config
 from mvtop_cli.estimator.estimator import FrameEstimate
 from mvtop_cli.estimator.evidence import EvidenceReport
+from mvtop_cli.filter.health import RivalMode
 from mvtop_cli.pipelines.track import run_summary, warning_report
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,12 +39,40 @@ def test_suspect_estimate_is_a_run_warning_when_enough_frames_leave_an_axis_open
     assert len(suspect) == 1 and suspect[0]["frame"] is None
     assert suspect[0]["unpinned_frames"] == 2 and suspect[0]["frames"] == 5
     assert summary["warning_counts"]["suspect_estimate"] == 1
+    assert summary["suspect"] == {"raised": True, "causes": ["unpinned"], "unpinned_frames": 2, "evidence_frames": 5,
+                                  "unpinned_threshold": 0.4}
     assert any(line.startswith("suspect_estimate: the evidence left some pose axis open in 2 of 5 frames")
                for line in warning_report(summary))
     # the threshold is the config's: above the run's fraction, or null, no warning
     for value in (0.5, None):
         other = replace(cfg, output=replace(cfg.output, suspect_unpinned_fraction=value))
-        assert "suspect_estimate" not in run_summary(frames, other, tmp_path / "log.mcap", 1.0, [])["warning_counts"]
+        quiet = run_summary(frames, other, tmp_path / "log.mcap", 1.0, [])
+        assert "suspect_estimate" not in quiet["warning_counts"]
+        # what would raise it is kept all the same: the share of open frames and the threshold it missed
+        assert quiet["suspect"] == {"raised": False, "causes": [], "unpinned_frames": 2, "evidence_frames": 5,
+                                    "unpinned_threshold": value}
     # frames without evidence do not count
     quiet = _frames([False] * 5) + [replace(f, evidence=None) for f in _frames([True] * 5)]
     assert "suspect_estimate" not in run_summary(quiet, cfg, tmp_path / "log.mcap", 1.0, [])["warning_counts"]
+
+
+def test_suspect_keeps_every_cause_that_holds_at_the_end(tmp_path: Path):
+    """A rival mode and a sensor disagreement still standing at the last frame, with too many open
+    frames: the record's sentence names the open frames, and ``suspect`` lists all three causes."""
+    cfg = load_config(ROOT / "configs" / "conn2.yaml")
+    frames = _frames([True, True, False])
+    rival = RivalMode(frame=1, translation_mm=2.5, rotation_deg=1.0, nats_below=1.5)
+    dissent = RivalMode(frame=0, translation_mm=4.0, rotation_deg=6.0, nats_below=-9.0, sensor="front",
+                        others_gain=12.0)
+    frames[-1] = replace(frames[-1], rival=rival, disagreement=dissent)
+    summary = run_summary(frames, cfg, tmp_path / "log.mcap", 1.0, [])
+    assert summary["suspect"]["causes"] == ["unpinned", "rival_mode", "sensors_disagree"]
+    (record,) = [w for w in summary["warnings"] if w["kind"] == "suspect_estimate"]
+    assert record["unpinned_frames"] == 2
+    # without the open frames the rival names the record; the disagreement is still kept as a cause
+    frames = [replace(f, evidence=EvidenceReport({"front": 0.95}, 10.0, np.full(6, 0.01))) for f in frames]
+    summary = run_summary(frames, cfg, tmp_path / "log.mcap", 1.0, [])
+    assert summary["suspect"] == {"raised": True, "causes": ["rival_mode", "sensors_disagree"], "unpinned_frames": 0,
+                                  "evidence_frames": 3, "unpinned_threshold": 0.4}
+    (record,) = [w for w in summary["warnings"] if w["kind"] == "suspect_estimate"]
+    assert record["rival_frame"] == 1 and record["rival_translation_mm"] == 2.5
