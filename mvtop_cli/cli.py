@@ -807,6 +807,15 @@ def benchmark_scene_option():
                              "hard). One scene per --out folder.")
 
 
+def benchmark_masks_option():
+    """``--recorded-masks-px N``: a simulated segmenter's camera masks recorded with the images."""
+    return click.option("--recorded-masks-px", "recorded_masks_px", type=click.IntRange(0, 20), default=None,
+                        help="Simulate a segmenter node on the robot (the paper's supervised setting): each camera "
+                             "image's object mask is recorded with it, its outline off by up to this many pixels (0: "
+                             "exact), and the estimator reads it (masking backend topic). One setting per --out "
+                             "folder. Default: masks made from the images.")
+
+
 def benchmark_settings_option():
     """``--set KEY=VALUE`` (repeatable): config settings over every scene config of a benchmark."""
     return click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
@@ -876,6 +885,7 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
                    "point-set registration of the same observations; needs pip install -e '.[baseline]').")
 @click.option("--frames", type=click.IntRange(4, 1000), default=30, show_default=True, help="Frames per episode.")
 @benchmark_scene_option()
+@benchmark_masks_option()
 @benchmark_settings_option()
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
@@ -886,9 +896,9 @@ def _benchmark_objects(objects: str | None, object_files: tuple[Path, ...]) -> t
               "finished (or imported); make no new run.")
 @benchmark_ray_option()
 def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tuple[Path, ...], poses: int,
-                           first_seed: int, methods: str, frames: int, scene: str, settings: tuple[str, ...],
-                           particles: int | None, workers: int, import_results: Path | None, summary_only: bool,
-                           ray_address: str | None) -> None:
+                           first_seed: int, methods: str, frames: int, scene: str, recorded_masks_px: int | None,
+                           settings: tuple[str, ...], particles: int | None, workers: int,
+                           import_results: Path | None, summary_only: bool, ray_address: str | None) -> None:
     """Reproduce the paper's simulated experiments: every object x grasp x method is simulated,
     estimated and evaluated; prints median / p95 final errors (figure 4), insertion success
     rates (table I) and run times, and writes them to OUT/summary.md and summary.json, with
@@ -902,7 +912,8 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
     options = AccuracyOptions(objects=objs, poses=poses, first_seed=first_seed, methods=meths, frames=frames,
                               particles=particles, workers=workers,
                               import_results=import_results, summary_only=summary_only, object_files=files,
-                              ray=ray_address, scene=scene, settings=parse_settings(settings))
+                              ray=ray_address, scene=scene, recorded_masks_px=recorded_masks_px,
+                              settings=parse_settings(settings))
     with _stops_resumably("benchmark accuracy", out_dir, "runs"), _progress("benchmark accuracy") as update:
         summary = run_accuracy(out_dir, options, progress=update)
     click.echo(format_table(summary))
@@ -916,10 +927,7 @@ def benchmark_accuracy_cmd(out_dir: Path, objects: str | None, object_files: tup
 @click.option("--attempts", type=click.IntRange(1, 20), default=3, show_default=True,
               help="Descents per grasp: after a stalled one the robot backs off, re-aligns and retries.")
 @benchmark_scene_option()
-@click.option("--recorded-masks-px", "recorded_masks_px", type=click.IntRange(0, 20), default=None,
-              help="Simulate a segmenter node on the robot (the paper's supervised setting): each camera image's "
-                   "object mask is recorded with it, its outline off by up to this many pixels (0: exact), and the "
-                   "estimator reads it (masking backend topic). Default: masks made from the images.")
+@benchmark_masks_option()
 @benchmark_settings_option()
 @particles_option()
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")

@@ -38,12 +38,15 @@ from .runs import (
     append_invocation,
     check_settings_apply,
     code_fingerprint,
+    masks_note,
+    masks_record,
     plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
     settings_note,
     settings_record,
+    simulated_sensors,
     totals,
     write_jsonl_gz,
     write_result,
@@ -80,6 +83,9 @@ class AccuracyOptions:
     summary_only: bool = False  # tables over the finished runs; no run is made
     ray: str | None = None  # run the runs as Ray tasks: local, auto or a cluster address (batch/engine.py)
     scene: str = "default"  # simulated camera scene: default, or hard (pipelines.simulate.HARD_SCENE)
+    # None: camera masks made from the images (the config's classical backend); N: a segmenter
+    # node's masks recorded with the images, outlines off by up to N px (``topic`` backend)
+    recorded_masks_px: int | None = None
     settings: dict = field(default_factory=dict)  # {dotted config key: value} over every scene config (--set)
 
 
@@ -89,31 +95,31 @@ _RECORD_KEYS = ("schema", "object", "symmetries", "clearance_mm", "estimate", "f
 
 
 def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, particles: int | None, threads: int,
-             source: str | None = None, scene_name: str = "default", settings: dict | None = None) -> dict:
+             source: str | None = None, scene_name: str = "default", settings: dict | None = None,
+             recorded_masks_px: int | None = None) -> dict:
     """Simulate (once per object and seed, shared by the methods), estimate, evaluate. ``source``:
     the object file of ``obj`` (default: the built-in object of that name); ``scene_name`` the
     simulated camera scene (``default`` or ``hard``); ``settings`` ``{dotted config key: value}``
-    over the scene config (``--set``)."""
+    over the scene config (``--set``); ``recorded_masks_px`` as ``AccuracyOptions``."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
     from ..config import load_config
     from ..pipelines.estimate import EstimateOptions, estimate
     from ..pipelines.evaluate import evaluate
-    from ..pipelines.simulate import SimulateOptions, scene_options, simulate, write_scene_config
-    from ..sim.episode import EpisodeOptions
+    from ..pipelines.simulate import simulate, write_scene_config
 
     run = Path(run_dir)
     scene = run.parent.parent / "scenes" / f"{obj}_{seed}"
     scene.mkdir(parents=True, exist_ok=True)
     log = scene / "log.mcap"
     cfg_path = scene / "config.yaml"
+    sensors = simulated_sensors(scene_name, recorded_masks_px, frames)
     simulate_seconds = 0.0
     if not log.exists():
         ts = time.perf_counter()
-        simulate(source or obj, seed, log,
-                 scene_options(SimulateOptions(episode=EpisodeOptions(frames=frames)), scene_name))
+        simulate(source or obj, seed, log, sensors)
         simulate_seconds = time.perf_counter() - ts
     if not cfg_path.exists():
-        write_scene_config(source or obj, cfg_path)
+        write_scene_config(source or obj, cfg_path, sensors)
     cfg = load_config(cfg_path, settings)
     t0, c0 = time.perf_counter(), time.process_time()
     extra = {}
@@ -131,7 +137,8 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     report = evaluate(run, log, None, run / "eval")
     report["benchmark"] = {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                            "cpu_seconds": time.process_time() - c0, "simulate_seconds": simulate_seconds,
-                           "code": code_fingerprint(), **scene_record(scene_name), **settings_record(settings),
+                           "code": code_fingerprint(), **scene_record(scene_name), **masks_record(recorded_masks_px),
+                           **settings_record(settings),
                            **extra}
     write_result(run, report)
     return report
@@ -151,24 +158,26 @@ def run_accuracy(out_dir: Path, options: AccuracyOptions, progress: Callable[[in
 
         require()  # a missing extra stops here, before any run, with the pip command
     files = dict(options.object_files)
-    check_settings_apply([files.get(o, o) for o in options.objects], options.settings)
+    check_settings_apply([files.get(o, o) for o in options.objects], options.settings,
+                         simulated_sensors(options.scene, options.recorded_masks_px))
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
                                               options.first_seed, options.scene, options.import_results, read_results,
-                                              options.summary_only, options.settings)
+                                              options.summary_only, options.settings, options.recorded_masks_px)
     # methods of one scene share its simulated log; two workers may both simulate it, which
     # is harmless: simulation is deterministic and the log is written atomically
 
     def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
         o, s, m = key
         return (o, s, m, str(run_dir), options.frames, options.particles, threads, files.get(o), options.scene,
-                options.settings)
+                options.settings, options.recorded_masks_px)
 
     seconds = run_jobs(_run_one, todo, args_of, reports, len(jobs), engine, progress)
     if not options.summary_only:
         append_invocation(out_dir, options.workers, len(todo), imported, seconds)
     summary = {"objects": list(options.objects), "poses": options.poses, "methods": list(options.methods),
-               "scene": options.scene, "settings": dict(options.settings),
+               "scene": options.scene, "recorded_masks_px": options.recorded_masks_px,
+               "settings": dict(options.settings),
                "seconds_this_run": round(seconds, 1), "runs": len(reports), "runs_requested": len(jobs),
                "imported_this_run": imported, "totals": totals(out_dir, reports), "table": {}}
     for method in options.methods:
@@ -367,7 +376,7 @@ def _header_lines(summary: dict) -> list[str]:
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs "
              f"({summary['poses']} grasps per object x {len(summary['objects'])} objects x "
              f"{len(summary['methods'])} methods"
-             f"{settings_note(summary.get('settings'))})"
+             f"{masks_note(summary.get('recorded_masks_px'))}{settings_note(summary.get('settings'))})"
              f"{'' if done else ': not complete'}; code {codes}.",
              f"Time: {wall}the runs (estimate + eval) added up to {format_duration(t['run_seconds_sum'])} wall and "
              f"{format_duration(t['run_cpu_seconds_sum'])} CPU; {sim}.", ""]

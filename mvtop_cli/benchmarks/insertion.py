@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -39,12 +39,15 @@ from .runs import (
     append_invocation,
     check_settings_apply,
     code_fingerprint,
+    masks_note,
+    masks_record,
     plan_runs,
     read_jsonl,
     run_jobs,
     scene_record,
     settings_note,
     settings_record,
+    simulated_sensors,
     totals,
     write_jsonl_gz,
     write_result,
@@ -90,7 +93,7 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
     from ..sim.closed_loop import ControllerOptions
 
     run = Path(run_dir)
-    sensors = _sensors(scene_name, recorded_masks_px)
+    sensors = simulated_sensors(scene_name, recorded_masks_px)
     cfg_path = run.parent.parent / "scenes" / obj / "config.yaml"
     if not cfg_path.exists():  # two workers may both write it: the same bytes, written atomically
         write_scene_config(source or obj, cfg_path, sensors)
@@ -103,7 +106,7 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
         "benchmark": {"object": obj, "seed": seed, "method": method, "seconds": time.perf_counter() - t0,
                       "cpu_seconds": time.process_time() - c0, "particles": cfg.filter.num_particles,
                       "attempts_allowed": attempts, "code": code_fingerprint(), **scene_record(scene_name),
-                      **({} if recorded_masks_px is None else {"recorded_masks_px": recorded_masks_px}),
+                      **masks_record(recorded_masks_px),
                       **settings_record(settings)},
         "insertion": {
             "success": result.success, "attempts": len(result.attempts), "frames": result.frames,
@@ -114,16 +117,6 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, particles: int | No
     }
     write_result(run, report)
     return report
-
-
-def _sensors(scene_name: str, recorded_masks_px: int | None):
-    """The simulator's ``SimulateOptions`` of a benchmark's camera scene and masks."""
-    from ..pipelines.simulate import SimulateOptions, scene_options
-
-    sensors = scene_options(SimulateOptions(), scene_name)
-    if recorded_masks_px is not None:
-        sensors = replace(sensors, mask_topics=True, mask_error_px=recorded_masks_px)
-    return sensors
 
 
 def _attempt_record(a) -> dict:
@@ -145,20 +138,15 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
         raise MvtopError(f"attempts: expected at least 1, got {options.attempts}")
     files = dict(options.object_files)
     check_settings_apply([files.get(o, o) for o in options.objects], options.settings,
-                         _sensors(options.scene, options.recorded_masks_px))
+                         simulated_sensors(options.scene, options.recorded_masks_px))
     engine = make_engine(options.workers, options.ray)  # local processes or Ray tasks (batch/engine.py)
     jobs, reports, todo, imported = plan_runs(out_dir, options.objects, options.methods, options.poses,
                                               options.first_seed, options.scene, options.import_results, read_results,
-                                              options.summary_only, options.settings)
+                                              options.summary_only, options.settings, options.recorded_masks_px)
     stale = sorted({r["benchmark"]["attempts_allowed"] for r in reports.values()} - {options.attempts})
     if stale:
         raise MvtopError(f"{out_dir}: its runs were made with --attempts {stale[0]}, not {options.attempts} "
                          "(use that, or another --out)")
-    masks = {r["benchmark"].get("recorded_masks_px") for r in reports.values()} - {options.recorded_masks_px}
-    if masks:
-        raise MvtopError(f"{out_dir}: its runs were made with {_masks_setting(masks.pop())}, not "
-                         f"{_masks_setting(options.recorded_masks_px)} (one setting per benchmark folder: give "
-                         "another --out)")
 
     def args_of(key: tuple, run_dir: Path, threads: int) -> tuple:
         o, s, m = key
@@ -184,17 +172,6 @@ def run_insertion_benchmark(out_dir: Path, options: InsertionBenchmarkOptions,
     with atomic_output(out_dir / "summary.md", "w") as fh:
         fh.write(format_table(summary))
     return summary
-
-
-def _masks_setting(px: int | None) -> str:
-    return "camera masks made from the images" if px is None else f"--recorded-masks-px {px}"
-
-
-def _recorded_masks_note(px: int | None) -> str:
-    if px is None:
-        return ""
-    outline = "exact" if px == 0 else f"outlines off by up to {px} px"
-    return f", camera masks recorded by a simulated segmenter ({outline})"
 
 
 def read_results(path: Path) -> list[dict]:
@@ -241,7 +218,7 @@ def format_table(summary: dict) -> str:
     lines = [f"{summary['runs']} of {summary['runs_requested']} runs ({summary['poses']} grasps per object x "
              f"{len(objs)} objects x {len(summary['methods'])} methods, up to {summary['attempts']} attempts"
              f"{'' if summary.get('scene', 'default') == 'default' else ', ' + summary['scene'] + ' scene'}"
-             f"{_recorded_masks_note(summary.get('recorded_masks_px'))}"
+             f"{masks_note(summary.get('recorded_masks_px'))}"
              f"{settings_note(summary.get('settings'))})"
              f"{'' if done else ': not complete'}; code {codes}.", ""]
 

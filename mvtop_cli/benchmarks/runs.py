@@ -2,9 +2,10 @@
 ``runs/<name>/result.json`` per finished run, so that an interrupted benchmark resumes where it
 stopped; the runs made on the batch engine (``batch/engine.py``: local processes or Ray tasks)
 with progress; each invocation's wall time in ``invocations.jsonl``; the fingerprint of the
-code that made a run; one simulated camera scene and one set of config settings (``--set``) per
-folder (``check_scene``, ``check_settings``); and the compact, byte-reproducible
-``results.jsonl.gz``.
+code that made a run; one simulated camera scene, one kind of camera masks (made from the images,
+or a simulated segmenter's recorded with them: ``--recorded-masks-px``) and one set of config
+settings (``--set``) per folder (``check_scene``, ``check_masks``, ``check_settings``); and the
+compact, byte-reproducible ``results.jsonl.gz``.
 """
 
 from __future__ import annotations
@@ -53,14 +54,15 @@ def finished_runs(jobs: list[tuple[Hashable, Path]]) -> tuple[dict, list[tuple[H
 
 def plan_runs(out_dir: Path, objects, methods, poses: int, first_seed: int, scene: str,
               import_results: Path | None, read_results: Callable[[Path], list[dict]], summary_only: bool,
-              settings: Mapping[str, Any] | None = None
+              settings: Mapping[str, Any] | None = None, recorded_masks_px: int | None = None
               ) -> tuple[list[tuple[Hashable, Path]], dict, list[tuple[Hashable, Path]], int]:
     """A benchmark's runs in ``out_dir/runs``: every (object, seed, method) job in grasp-major
     order (a partial benchmark holds the same grasps of every object and method, so its tables
     compare like with like), the records of ``import_results`` (read by ``read_results``)
-    written as their results, the finished reports checked for one camera ``scene`` and one
-    set of config ``settings``, and the jobs still to run (none with ``summary_only``, which
-    needs a finished run). Returns ``(jobs, reports, todo, imported)``."""
+    written as their results, the finished reports checked for one camera ``scene``, one kind
+    of camera masks (``recorded_masks_px``) and one set of config ``settings``, and the jobs
+    still to run (none with ``summary_only``, which needs a finished run). Returns ``(jobs,
+    reports, todo, imported)``."""
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [((obj, first_seed + i, method), out_dir / "runs" / f"{obj}_{first_seed + i}_{method}")
             for i in range(poses) for obj in objects for method in methods]
@@ -69,6 +71,7 @@ def plan_runs(out_dir: Path, objects, methods, poses: int, first_seed: int, scen
         imported = import_records(Path(import_results), read_results(Path(import_results)), jobs)
     reports, todo = finished_runs(jobs)
     check_scene(out_dir, reports, scene)
+    check_masks(out_dir, reports, recorded_masks_px)
     check_settings(out_dir, reports, settings or {})
     if summary_only:
         todo = []
@@ -93,6 +96,53 @@ def check_scene(out_dir: Path, reports: dict, scene: str) -> None:
         if made_in != scene:
             raise MvtopError(f"{out_dir}: holds runs of the {made_in!r} scene, not {scene!r} "
                              "(expected one scene per benchmark folder: give another --out)")
+
+
+def simulated_sensors(scene: str, recorded_masks_px: int | None, frames: int | None = None):
+    """The simulator's ``SimulateOptions`` for a benchmark's runs: its camera ``scene``; with
+    ``recorded_masks_px`` N, each camera image's object mask recorded with it, as a segmenter
+    node on the robot would publish it (outlines off by up to N px; the scene config then reads
+    it with the ``topic`` backend), else none; ``frames`` per episode (None: the simulator's)."""
+    from dataclasses import replace
+
+    from ..pipelines.simulate import SimulateOptions, scene_options
+    from ..sim.episode import EpisodeOptions
+
+    options = SimulateOptions() if frames is None else SimulateOptions(episode=EpisodeOptions(frames=frames))
+    options = scene_options(options, scene)
+    if recorded_masks_px is not None:
+        options = replace(options, mask_topics=True, mask_error_px=recorded_masks_px)
+    return options
+
+
+def masks_record(recorded_masks_px: int | None) -> dict:
+    """What a run's ``benchmark`` record notes of its camera masks: nothing for masks made from
+    the images, so records made before recorded masks existed read as such."""
+    return {} if recorded_masks_px is None else {"recorded_masks_px": recorded_masks_px}
+
+
+def masks_text(recorded_masks_px: int | None) -> str:
+    """The camera masks of ``recorded_masks_px`` as a command line would ask for them."""
+    return "camera masks made from the images" if recorded_masks_px is None else \
+        f"--recorded-masks-px {recorded_masks_px}"
+
+
+def masks_note(recorded_masks_px: int | None) -> str:
+    """What a table's header adds for recorded camera masks, or nothing."""
+    if recorded_masks_px is None:
+        return ""
+    outline = "exact" if recorded_masks_px == 0 else f"outlines off by up to {recorded_masks_px} px"
+    return f", camera masks recorded by a simulated segmenter ({outline})"
+
+
+def check_masks(out_dir: Path, reports: dict, recorded_masks_px: int | None) -> None:
+    """A benchmark folder holds the runs of one kind of camera masks: a finished (or imported)
+    run made with others is an error naming the folder and both."""
+    for report in reports.values():
+        made = report.get("benchmark", {}).get("recorded_masks_px")
+        if made != recorded_masks_px:
+            raise MvtopError(f"{out_dir}: its runs were made with {masks_text(made)}, not "
+                             f"{masks_text(recorded_masks_px)} (one setting per benchmark folder: give another --out)")
 
 
 def settings_record(settings: Mapping[str, Any] | None) -> dict:

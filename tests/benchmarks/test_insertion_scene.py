@@ -1,6 +1,6 @@
 """``mvtop benchmark insertion --scene``, ``--recorded-masks-px`` and ``--set``: one simulated
 camera scene, one source of camera masks and one set of config settings per benchmark folder, as
-for ``benchmark accuracy`` (the scene and settings checks are ``benchmarks.runs.check_scene`` and
+for ``benchmark accuracy`` (the checks are ``benchmarks.runs.check_scene``, ``check_masks`` and
 ``check_settings``, shared by both)."""
 
 from __future__ import annotations
