@@ -413,6 +413,9 @@ def format_table(summary: dict) -> str:
     if any(a.get("before_contact_runs") for per in summary["table"].values() for a in per.values()):
         rate_table("Within the clearance just before contact (the last frame before the log first reports it)",
                    "before_contact_success_rate")
+    if any(a.get("nees_within_bound_fraction") is not None for per in summary["table"].values() for a in per.values()):
+        rate_table("Final NEES within its chi-square 95 % bound (the reported covariance against the final error)",
+                   "nees_within_bound_fraction")
     if any("seconds" in a for per in summary["table"].values() for a in per.values()):
         lines += ["", "## Time per run, median wall / CPU [s] (estimate + eval; CHSEL: points + registration)", "",
                   "| method | " + " | ".join(objs) + " |", "|---|" + "---|" * len(objs)]
