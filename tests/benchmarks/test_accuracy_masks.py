@@ -1,35 +1,15 @@
 """``mvtop benchmark accuracy --recorded-masks-px``: a simulated segmenter's camera masks recorded
-with the images and read by the estimator (``topic`` backend); one kind of camera masks per
-benchmark folder (``benchmarks.runs.check_masks``, shared with ``benchmark insertion``)."""
+with the images and read by the estimator (``topic`` backend). One kind of camera masks per
+folder: ``test_accuracy_scene.py``."""
 
 from __future__ import annotations
 
 import json
 
 import numpy as np
-import pytest
 import yaml
 
 from mvtop_cli.benchmarks.accuracy import AccuracyOptions, format_table, run_accuracy
-from mvtop_cli.errors import MvtopError
-
-
-@pytest.mark.parametrize("made_with, asked, message", [
-    (None, 0, "camera masks made from the images, not --recorded-masks-px 0"),
-    (1, None, "--recorded-masks-px 1, not camera masks made from the images"),
-])
-def test_a_folder_of_other_camera_masks_is_refused_before_any_run(tmp_path, made_with, asked, message):
-    run = tmp_path / "runs" / "cube_1000_M-VOP"
-    run.mkdir(parents=True)
-    bench = {"object": "cube", "seed": 1000, "method": "M-VOP",
-             **({} if made_with is None else {"recorded_masks_px": made_with})}
-    (run / "result.json").write_text(json.dumps({"benchmark": bench}))
-    options = AccuracyOptions(objects=("cube",), poses=1, methods=("M-VOP",), recorded_masks_px=asked)
-    with pytest.raises(MvtopError) as info:
-        run_accuracy(tmp_path, options)
-    assert str(info.value) == (f"{tmp_path}: its runs were made with {message} (one setting per benchmark folder: "
-                               "give another --out)")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # nothing written
 
 
 def test_recorded_masks_reach_the_estimator_and_the_record(tmp_path):

@@ -1,7 +1,6 @@
-"""``mvtop benchmark insertion --scene``, ``--recorded-masks-px`` and ``--set``: one simulated
-camera scene, one source of camera masks and one set of config settings per benchmark folder, as
-for ``benchmark accuracy`` (the checks are ``benchmarks.runs.check_scene``, ``check_masks`` and
-``check_settings``, shared by both)."""
+"""``mvtop benchmark insertion --scene``, ``--recorded-masks-px`` and ``--set``: the tables name
+them, and a setting no scene config takes is refused (one of each per folder:
+``test_folder_checks.py``)."""
 
 from __future__ import annotations
 
@@ -10,29 +9,6 @@ import json
 import pytest
 
 from mvtop_cli.benchmarks.insertion import InsertionBenchmarkOptions, format_table, run_insertion_benchmark
-from mvtop_cli.errors import MvtopError
-
-
-def _refused(folder, made_with: dict, **asked) -> str:
-    """The error of a benchmark asked with ``asked`` options in ``folder``, which holds one
-    finished cube M-TOP run whose ``benchmark`` record adds ``made_with``; checks that nothing
-    was written."""
-    run = folder / "runs" / "cube_1000_M-TOP"
-    run.mkdir(parents=True)
-    bench = {"object": "cube", "seed": 1000, "method": "M-TOP", "attempts_allowed": 3, **made_with}
-    (run / "result.json").write_text(json.dumps({"benchmark": bench}))
-    options = InsertionBenchmarkOptions(objects=("cube",), poses=1, methods=("M-TOP",), **asked)
-    with pytest.raises(MvtopError) as info:
-        run_insertion_benchmark(folder, options)
-    assert sorted(p.name for p in folder.iterdir()) == ["runs"]  # nothing written
-    return str(info.value)
-
-
-@pytest.mark.parametrize("made_in, asked", [(None, "hard"), ("hard", "default")])
-def test_a_folder_of_another_scene_is_refused_before_any_run(tmp_path, made_in, asked):
-    message = _refused(tmp_path, {"scene": made_in} if made_in else {}, scene=asked)
-    assert message == (f"{tmp_path}: holds runs of the {made_in or 'default'!r} scene, not {asked!r} "
-                       "(expected one scene per benchmark folder: give another --out)")
 
 
 def test_the_summary_names_a_hard_scene(tmp_path):
@@ -58,17 +34,6 @@ def test_the_summary_names_a_hard_scene(tmp_path):
     assert default == "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts); code abc (1 runs)."
 
 
-@pytest.mark.parametrize("made_with, asked, message", [
-    (None, 1, "camera masks made from the images, not --recorded-masks-px 1"),
-    (0, None, "--recorded-masks-px 0, not camera masks made from the images"),
-    (0, 2, "--recorded-masks-px 0, not --recorded-masks-px 2"),
-])
-def test_a_folder_of_other_camera_masks_is_refused_before_any_run(tmp_path, made_with, asked, message):
-    made = {} if made_with is None else {"recorded_masks_px": made_with}
-    assert _refused(tmp_path, made, recorded_masks_px=asked) == (
-        f"{tmp_path}: its runs were made with {message} (one setting per benchmark folder: give another --out)")
-
-
 def test_the_summary_names_recorded_masks():
     summary = {"objects": ["cube"], "poses": 1, "methods": ["M-VTOP"], "attempts": 3, "scene": "default",
                "recorded_masks_px": 1, "runs": 1, "runs_requested": 1, "totals": {"code_versions": {"abc": 1}},
@@ -76,18 +41,6 @@ def test_the_summary_names_recorded_masks():
     assert format_table(summary).splitlines()[0] == (
         "1 of 1 runs (1 grasps per object x 1 objects x 1 methods, up to 3 attempts, camera masks recorded by a "
         "simulated segmenter (outlines off by up to 1 px)); code abc (1 runs).")
-
-
-@pytest.mark.parametrize("made_with, asked, message", [
-    (None, {"contact.softness_m": 5e-5}, "no --set, not --set contact.softness_m=5e-05"),
-    ({"contact.softness_m": 5e-5}, {}, "--set contact.softness_m=5e-05, not no --set"),
-    ({"contact.softness_m": 5e-5}, {"contact.softness_m": 1e-4}, "--set contact.softness_m=5e-05, not --set "
-                                                                 "contact.softness_m=0.0001"),
-])
-def test_a_folder_of_other_settings_is_refused_before_any_run(tmp_path, made_with, asked, message):
-    made = {} if made_with is None else {"settings": made_with}
-    assert _refused(tmp_path, made, settings=asked) == (
-        f"{tmp_path}: its runs were made with {message} (one setting per benchmark folder: give another --out)")
 
 
 def test_a_setting_no_scene_config_takes_is_refused_before_the_folder_exists(tmp_path):
