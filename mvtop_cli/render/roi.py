@@ -134,13 +134,22 @@ class Roi:
 
     def crop(self, mask: np.ndarray, threshold: float = 0.5) -> np.ndarray:
         """Full-image ``mask`` (H, W) bool -> ROI mask (h, w) bool: a ROI pixel is set when at
-        least ``threshold`` of its area is covered, so the mask area is preserved on average."""
+        least ``threshold`` of its area is covered, so the mask area is preserved on average.
+        At full resolution a pixel is covered wholly or not at all: the window itself."""
+        mask = np.asarray(mask)
+        if mask.dtype == bool and self.shape == (self.height, self.width) and 0.0 < threshold <= 1.0:
+            return self._crop(mask)
         return self.coverage(mask) >= threshold
 
     def outside_area(self, mask: np.ndarray) -> float:
         """Area of ``mask`` (H, W) bool outside the ROI window, in ROI pixels (image pixels
         times ``scale**2``); pass it to the IoU so scores cover the whole image."""
-        return self.outside_sum(np.asarray(mask, dtype=bool))
+        m = np.asarray(mask, dtype=bool)
+        H, W = m.shape[:2]
+        ys, xs = max(self.y0, 0), max(self.x0, 0)
+        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
+        inside = np.count_nonzero(m[ys:ye, xs:xe]) if ye > ys and xe > xs else 0
+        return float((np.count_nonzero(m) - inside) * self.scale**2)
 
     def outside_sum(self, values: np.ndarray) -> float:
         """The sum of the full-image map ``values`` (H, W) outside the ROI window, in ROI pixels:

@@ -83,6 +83,20 @@ def test_crop_is_area_consistent_and_paste_inverts_it():
     assert half.outside_area(mask) == pytest.approx(mask[:, :300].sum())
 
 
+@pytest.mark.parametrize("roi", [Roi(240, 150, 120, 102), Roi(-7, 430, 60, 80), Roi(600, -5, 64, 40),
+                                 Roi(240, 150, 120, 102, 0.5), Roi(-8, 440, 64, 48, 0.25)])
+def test_crop_and_outside_area_of_a_bool_mask_equal_the_coverage_route(roi):
+    """A bool mask's crop and outside area (counted directly) are the coverage's and the float
+    sum's, bit for bit, also where the window leaves the image."""
+    rng = np.random.default_rng(3)
+    mask = rng.random((480, 640)) < 0.3
+    np.testing.assert_array_equal(roi.crop(mask), roi.coverage(mask) >= 0.5)
+    np.testing.assert_array_equal(roi.crop(mask, 0.75), roi.coverage(mask) >= 0.75)
+    assert roi.outside_area(mask) == roi.outside_sum(mask.astype(np.float32))
+    inside = mask[max(roi.y0, 0):roi.y0 + roi.height, max(roi.x0, 0):roi.x0 + roi.width].sum()
+    assert roi.outside_area(mask) == (mask.sum() - inside) * roi.scale**2
+
+
 def test_roi_bounds_are_clipped_to_the_image(scene):
     roi = roi_from_bounds(-50.0, -20.0, 30.0, 10.0, scene.camera, max_side=128)
     assert (roi.x0, roi.y0) == (0, 0) and roi.scale == 1.0
