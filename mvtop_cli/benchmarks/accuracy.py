@@ -126,7 +126,10 @@ def _run_one(obj: str, seed: int, method: str, run_dir: str, frames: int, partic
     if method in MODALITY_SETS:
         summary = estimate(log, cfg, run, EstimateOptions(modalities=MODALITY_SETS[method], num_particles=particles,
                                                           seed=seed))
-        extra = {"warning_counts": summary["warning_counts"], "suspect": summary["suspect"]}
+        final = summary["final"]
+        extra = {"warning_counts": summary["warning_counts"], "suspect": summary["suspect"],
+                 "reported_std": {"translation_mm": 1e3 * final["translation_std_m"],
+                                  "rotation_deg": final["rotation_std_deg"]}}
     else:  # the baseline
         from .baselines.chsel_runner import ChselOptions
         from .baselines.run import BaselineOptions, estimate_chsel

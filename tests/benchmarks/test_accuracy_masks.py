@@ -1,6 +1,6 @@
 """``mvtop benchmark accuracy --recorded-masks-px``: a simulated segmenter's camera masks recorded
 with the images and read by the estimator (``topic`` backend). One kind of camera masks per
-folder: ``test_accuracy_scene.py``."""
+folder: ``test_folder_checks.py``."""
 
 from __future__ import annotations
 

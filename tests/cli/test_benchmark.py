@@ -91,6 +91,10 @@ def test_benchmark_accuracy_runs_evaluates_and_resumes(tmp_path):
     assert report["benchmark"]["suspect"] == run_summary["suspect"]
     assert report["benchmark"]["suspect"]["raised"] == ("suspect_estimate" in run_summary["warning_counts"])
     assert summary["suspect"]["M-TOP"]["runs"] == 1
+    # and the spread it reported at the end, to judge a warning on the covariance from the results alone
+    assert report["benchmark"]["reported_std"] == {"translation_mm": 1e3 * run_summary["final"]["translation_std_m"],
+                                                   "rotation_deg": run_summary["final"]["rotation_std_deg"]}
+    assert read_results(out / "results.jsonl.gz")[0]["benchmark"]["reported_std"] == report["benchmark"]["reported_std"]
     assert "- M-TOP: far off " in first.stdout
     stamp = result.stat().st_mtime_ns
     again = run(*args)
