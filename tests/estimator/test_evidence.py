@@ -56,6 +56,44 @@ def test_an_estimate_in_a_trough_reads_as_unpinned():
     assert np.isinf(widths[0])
 
 
+def _staircase(T0: np.ndarray, sigma: np.ndarray, stair: np.ndarray):
+    """A Gaussian log-likelihood (``_gaussian``) whose offsets are rounded down to whole ``stair``
+    widths per axis, as mask pixels round an outline's motion: flat within one stair."""
+    def ll(T: np.ndarray) -> np.ndarray:
+        dt = T[:, :3, 3] - T0[:3, 3]
+        dw = se3.matrix_to_rotvec(T[:, :3, :3] @ T0[:3, :3].T)
+        d = np.concatenate([dt, dw], axis=1)
+        d = np.sign(d) * np.floor(np.abs(d) / stair + 1e-9) * stair
+        return -0.5 * np.sum((d / sigma) ** 2, axis=1) + 10.0
+    return ll
+
+
+def test_an_axis_flat_at_the_step_is_read_at_a_larger_step_up_to_the_largest():
+    """A likelihood flat within 1.5 deg of rotation reads as open at 0.5 and 1 deg and as a width at
+    2 deg, only when the step may grow that far; an axis flat at every allowed step stays open."""
+    T0 = np.eye(4)
+    sigma = np.array([3e-4, 3e-4, 3e-4, np.radians(1.0), np.radians(1.0), np.inf])
+    stair = np.array([1e-9, 1e-9, 1e-9, np.radians(1.5), np.radians(0.2), np.radians(1.5)])
+    ll = _staircase(T0, sigma, stair)
+    _, fixed = likelihood_widths(ll, T0, 5e-4, np.radians(0.5))
+    assert np.isinf(fixed[3]) and np.isinf(fixed[5]) and np.isfinite(fixed[[0, 1, 2, 4]]).all()
+    for factor in (2, 3):
+        _, two = likelihood_widths(ll, T0, 5e-4, np.radians(0.5), max_step_factor=factor)
+        np.testing.assert_array_equal(two, fixed)  # 1 deg still inside the stair
+    calls = []
+
+    def counted(T: np.ndarray) -> np.ndarray:
+        calls.append(len(T))
+        return ll(T)
+
+    _, grown = likelihood_widths(counted, T0, 5e-4, np.radians(0.5), max_step_factor=8)
+    assert calls == [13, 4, 4, 2]  # both flat axes at 1 and 2 deg, the one still flat at 4 deg
+    np.testing.assert_array_equal(grown[[0, 1, 2, 4]], fixed[[0, 1, 2, 4]])  # axes pinned at the step: as before
+    # at 2 deg the offsets round to 1.5 deg: drop (1.5 / 1)^2 / 2 nats, width 2 / 1.5 deg
+    assert np.degrees(grown[3]) == pytest.approx(2.0 / 1.5, rel=1e-6)
+    assert np.isinf(grown[5])
+
+
 def test_evidence_covariance_takes_the_prior_where_the_likelihood_is_flat_and_never_exceeds_it():
     from mvtop_cli.config import GraspPrior
     from mvtop_cli.estimator.evidence import evidence_covariance
