@@ -11,12 +11,15 @@ Two numbers a user can read next to the estimate (track.csv, summary.json):
   Laplace approximation); a flat or rising log-likelihood gives ``inf`` there: the evidence
   does not pin that axis at the step's scale (a central difference reads a quadratic's curvature
   wherever the estimate sits on it, so being beside the peak does not make an axis flat).
-  An axis flat at the step is probed again at twice the step, and so on up to a largest step:
-  mask pixels make the camera likelihood a staircase, flat below the step that moves an outline
-  by a pixel. On a simulated conn2 grasp (hard scene, vision alone, seed 1020, frame 18) turning
-  the estimate 0.25, 0.5 and 1 deg either way about any axis left every mask as it was or
-  better (0.4-0.7 nats up), while 2 and 4 deg cost 0.9-2.2 and 4.4-10.5 nats: widths of
-  0.8-1.5 deg at both steps. Only an axis flat at every step up to the largest is open.
+  A width is read at a step only where it is at most the step (the log-likelihood falls by at
+  least half a nat there); an axis that falls less is probed again at twice the step, and so on
+  up to a largest step, past which it counts as open. Mask pixels make the camera likelihood a
+  staircase, flat below the step that moves an outline by a pixel, and a fall of a small
+  fraction of a nat is that staircase or the image's noise, not a width. On a simulated conn2
+  grasp (hard scene, vision alone, seed 1020, frame 18) turning the estimate 0.25, 0.5 and 1 deg
+  either way about any axis left every mask as it was or better (0.4-0.7 nats up), while 2 and 4
+  deg cost 0.9-2.2 and 4.4-10.5 nats: widths of 0.8-1.5 deg at both steps. For a Gaussian
+  log-likelihood every step reads the same width.
 
 This is a reading of the evidence, not of the particles: a belief that has collapsed further
 than its evidence supports shows as a particle spread far below these widths.
@@ -131,11 +134,12 @@ def _widths(centre: float, side: np.ndarray, steps: np.ndarray) -> np.ndarray:
 
 def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray,
                       step_translation_m: float, step_rotation_rad: float,
-                      max_step_factor: int = 1) -> tuple[float, np.ndarray]:
+                      max_step_factor: int) -> tuple[float, np.ndarray]:
     """The log-likelihood at ``T_ee_object`` (4, 4) and its width (6,) along each pose axis from
     a central difference with the given steps (see the module docstring): 13 poses scored in one
-    call, then two more per axis still flat at twice the step, and so on while the step is at
-    most ``max_step_factor`` times the first (1: the first step alone)."""
+    call; each axis whose width exceeds its step is probed again at twice the step (two poses
+    more), and so on while the step is at most ``max_step_factor`` times the first; an axis
+    whose width exceeds the last step it was probed at is ``inf``."""
     T = np.asarray(T_ee_object, dtype=np.float64)
     steps = np.array([step_translation_m] * 3 + [step_rotation_rad] * 3, dtype=np.float64)
     axes = np.arange(6)
@@ -144,12 +148,14 @@ def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_o
     if not np.isfinite(centre):
         return centre, np.full(6, np.inf)
     sigma = _widths(centre, ll[1:], steps)
-    factor = 2
-    flat = axes[~np.isfinite(sigma)]
-    while len(flat) and factor <= max_step_factor:
-        wider = factor * steps[flat]
-        sigma[flat] = _widths(centre, log_likelihood(_central_differences(T, flat, wider)), wider)
-        flat, factor = flat[~np.isfinite(sigma[flat])], 2 * factor
+    factor = 1
+    loose = axes[~(sigma <= steps)]
+    while len(loose) and 2 * factor <= max_step_factor:
+        factor *= 2
+        wider = factor * steps[loose]
+        sigma[loose] = _widths(centre, log_likelihood(_central_differences(T, loose, wider)), wider)
+        loose = loose[~(sigma[loose] <= wider)]
+    sigma[loose] = np.inf
     return centre, sigma
 
 
