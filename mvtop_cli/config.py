@@ -507,10 +507,6 @@ class OutputConfig:
         1e-6, 0.1, doc="the evidence diagnostic moves the estimate this far along each axis (estimator/evidence.py)"))
     evidence_step_rotation_deg: float = field(default=0.5, metadata=_rng(
         1e-4, 90.0, doc="... and turns it this far about each axis"))
-    evidence_max_step_factor: int = field(default=4, metadata=_rng(
-        1, 1024, doc="an axis whose likelihood falls by less than half a nat at the step is probed again at twice "
-                     "the step, while at most this many times the step, and is open past it (mask pixels make the "
-                     "likelihood flat below a pixel's motion: README, Reading the evidence); 1: the step alone"))
     covariance: Literal["particles", "particles_and_evidence"] = field(default="particles_and_evidence", metadata={
         "doc": "the reported covariance: the particles' spread alone, or plus the likelihood's widths at the "
                "estimate (estimator/evidence.py; the grasp prior's spread on an axis the evidence does not pin)"})

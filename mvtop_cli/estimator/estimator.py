@@ -431,7 +431,7 @@ class Estimator:
             return None
         o = self.cfg.output
         ll, sigma = likelihood_widths(likelihood, T_ee_object, o.evidence_step_translation_m,
-                                      np.radians(o.evidence_step_rotation_deg), o.evidence_max_step_factor)
+                                      np.radians(o.evidence_step_rotation_deg))
         return EvidenceReport(dict(sensor_iou), ll, sigma)
 
     def _profiled(self, observation: Observation) -> bool:

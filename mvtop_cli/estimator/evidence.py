@@ -11,15 +11,6 @@ Two numbers a user can read next to the estimate (track.csv, summary.json):
   Laplace approximation); a flat or rising log-likelihood gives ``inf`` there: the evidence
   does not pin that axis at the step's scale (a central difference reads a quadratic's curvature
   wherever the estimate sits on it, so being beside the peak does not make an axis flat).
-  A width is read at a step only where it is at most the step (the log-likelihood falls by at
-  least half a nat there); an axis that falls less is probed again at twice the step, and so on
-  up to a largest step, past which it counts as open. Mask pixels make the camera likelihood a
-  staircase, flat below the step that moves an outline by a pixel, and a fall of a small
-  fraction of a nat is that staircase or the image's noise, not a width. On a simulated conn2
-  grasp (hard scene, vision alone, seed 1020, frame 18) turning the estimate 0.25, 0.5 and 1 deg
-  either way about any axis left every mask as it was or better (0.4-0.7 nats up), while 2 and 4
-  deg cost 0.9-2.2 and 4.4-10.5 nats: widths of 0.8-1.5 deg at both steps. For a Gaussian
-  log-likelihood every step reads the same width.
 
 This is a reading of the evidence, not of the particles: a belief that has collapsed further
 than its evidence supports shows as a particle spread far below these widths.
@@ -115,48 +106,23 @@ def finite_or_none(value: float | None) -> float | None:
     return None if value is None or not np.isfinite(value) else float(value)
 
 
-def _central_differences(T_ee_object: np.ndarray, axes: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Poses (2 A, 4, 4): ``T_ee_object`` (4, 4) moved ``steps`` (A,) [m for axes 0-2, rad for
-    3-5] either way along pose axes ``axes`` (A,), the two of each axis in turn."""
-    delta = np.zeros((2 * len(axes), 6))
-    rows = np.arange(len(axes))
-    delta[2 * rows, axes], delta[2 * rows + 1, axes] = steps, -steps
-    return perturb_about_origin(np.broadcast_to(T_ee_object, (len(delta), 4, 4)), delta[:, :3], delta[:, 3:])
-
-
-def _widths(centre: float, side: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Widths (A,) from the log-likelihoods ``side`` (2 A,) of ``_central_differences`` about a
-    pose of log-likelihood ``centre``; ``inf`` where it does not fall."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # -inf scores: nan drops, inf widths
-        drop = centre - np.asarray(side, dtype=np.float64).reshape(-1, 2).mean(axis=1)  # d^2 / (2 sigma^2)
-        return np.where(drop > 0, steps / np.sqrt(2.0 * drop), np.inf)
-
-
 def likelihood_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray,
-                      step_translation_m: float, step_rotation_rad: float,
-                      max_step_factor: int) -> tuple[float, np.ndarray]:
+                      step_translation_m: float, step_rotation_rad: float) -> tuple[float, np.ndarray]:
     """The log-likelihood at ``T_ee_object`` (4, 4) and its width (6,) along each pose axis from
-    a central difference with the given steps (see the module docstring): 13 poses scored in one
-    call; each axis whose width exceeds its step is probed again at twice the step (two poses
-    more), and so on while the step is at most ``max_step_factor`` times the first; an axis
-    whose width exceeds the last step it was probed at is ``inf``."""
-    T = np.asarray(T_ee_object, dtype=np.float64)
+    a central difference with the given steps (see the module docstring); 13 poses scored."""
     steps = np.array([step_translation_m] * 3 + [step_rotation_rad] * 3, dtype=np.float64)
-    axes = np.arange(6)
-    ll = log_likelihood(np.concatenate([T[None], _central_differences(T, axes, steps)]))
-    centre = float(ll[0])
+    delta = np.zeros((12, 6))
+    for k in range(6):
+        delta[2 * k, k], delta[2 * k + 1, k] = steps[k], -steps[k]
+    probes = perturb_about_origin(np.broadcast_to(T_ee_object, (12, 4, 4)), delta[:, :3], delta[:, 3:])
+    ll = log_likelihood(np.concatenate([np.asarray(T_ee_object, dtype=np.float64)[None], probes]))
+    centre, side = ll[0], ll[1:].reshape(6, 2)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # -inf scores: nan drops, inf widths
+        drop = centre - side.mean(axis=1)  # nats lost half a step's square away: d^2 / (2 sigma^2)
+        sigma = np.where(drop > 0, steps / np.sqrt(2.0 * drop), np.inf)
     if not np.isfinite(centre):
-        return centre, np.full(6, np.inf)
-    sigma = _widths(centre, ll[1:], steps)
-    factor = 1
-    loose = axes[~(sigma <= steps)]
-    while len(loose) and 2 * factor <= max_step_factor:
-        factor *= 2
-        wider = factor * steps[loose]
-        sigma[loose] = _widths(centre, log_likelihood(_central_differences(T, loose, wider)), wider)
-        loose = loose[~(sigma[loose] <= wider)]
-    sigma[loose] = np.inf
-    return centre, sigma
+        sigma = np.full(6, np.inf)
+    return float(centre), sigma
 
 
 def profile_widths(log_likelihood: Callable[[np.ndarray], np.ndarray], T_ee_object: np.ndarray,
