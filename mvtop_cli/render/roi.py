@@ -86,14 +86,21 @@ class Roi:
         interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_NEAREST
         return cv2.resize(win, (cols, rows), interpolation=interp)
 
+    def _bounds(self, image_shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+        """(ys, ye, xs, xe): the image rows and columns the window covers inside an image of
+        ``image_shape`` (H, W, ...), or None when it lies wholly outside."""
+        H, W = image_shape[:2]
+        ys, xs = max(self.y0, 0), max(self.x0, 0)
+        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
+        return (ys, ye, xs, xe) if ye > ys and xe > xs else None
+
     def _crop(self, image: np.ndarray) -> np.ndarray:
         """The ROI's window of ``image`` (H, W, ...) at image resolution, in its dtype,
         zero-padded outside the image."""
-        H, W = image.shape[:2]
         win = np.zeros((self.height, self.width) + image.shape[2:], image.dtype)
-        ys, xs = max(self.y0, 0), max(self.x0, 0)
-        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
-        if ye > ys and xe > xs:
+        b = self._bounds(image.shape)
+        if b is not None:
+            ys, ye, xs, xe = b
             win[ys - self.y0 : ye - self.y0, xs - self.x0 : xe - self.x0] = image[ys:ye, xs:xe]
         return win
 
@@ -145,10 +152,8 @@ class Roi:
         """Area of ``mask`` (H, W) bool outside the ROI window, in ROI pixels (image pixels
         times ``scale**2``); pass it to the IoU so scores cover the whole image."""
         m = np.asarray(mask, dtype=bool)
-        H, W = m.shape[:2]
-        ys, xs = max(self.y0, 0), max(self.x0, 0)
-        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
-        inside = np.count_nonzero(m[ys:ye, xs:xe]) if ye > ys and xe > xs else 0
+        b = self._bounds(m.shape)
+        inside = 0 if b is None else np.count_nonzero(m[b[0]:b[1], b[2]:b[3]])
         return float((np.count_nonzero(m) - inside) * self.scale**2)
 
     def outside_sum(self, values: np.ndarray) -> float:
@@ -170,10 +175,9 @@ class Roi:
         ix = np.floor((np.arange(self.width) + 0.5) * self.scale).astype(int).clip(0, cols - 1)
         window = roi_image[iy][:, ix]
         out = np.full(tuple(image_shape) + roi_image.shape[2:], fill, dtype=roi_image.dtype)
-        H, W = image_shape
-        ys, xs = max(self.y0, 0), max(self.x0, 0)
-        ye, xe = min(self.y0 + self.height, H), min(self.x0 + self.width, W)
-        if ye > ys and xe > xs:
+        b = self._bounds(tuple(image_shape))
+        if b is not None:
+            ys, ye, xs, xe = b
             out[ys:ye, xs:xe] = window[ys - self.y0 : ye - self.y0, xs - self.x0 : xe - self.x0]
         return out
 
