@@ -517,7 +517,8 @@ class OutputConfig:
     evidence_profile: bool | Literal["without_cameras"] = field(default="without_cameras", metadata={"doc": (
         "on the check frames (search.rival_every, contact onsets) also measure the likelihood's profile widths "
         "(each axis with the other five searched: estimator/evidence.py) and report the wider of them and the "
-        "probe's in the covariance until the next check; the estimates are the same either way. "
+        "probe's in the covariance until the next check, an axis the profile leaves open counting as open for "
+        "suspect_unpinned_fraction; the estimates are the same either way. "
         "without_cameras: only on check frames no camera evidence enters (touch alone, whose pads leave "
         "ridges the one-axis probe misses: README, Reading the evidence)")})
     evidence_profile_translation_m: float = field(default=0.002, metadata=_rng(
@@ -532,9 +533,10 @@ class OutputConfig:
     evidence_profile_rounds: int = field(default=5, metadata=_rng(1, 1000, doc="rounds of the profile's search"))
     suspect_unpinned_fraction: float | None = field(default=0.4, metadata=_rng(
         0.0, 1.0, lo_open=True,
-        doc="a suspect_estimate warning when the evidence diagnostic leaves some pose axis open in at least this "
-            "fraction of the frames with evidence (filter/health.py; chosen on benchmark seeds 3000-3005 and "
-            "5000-5009, checked on 6000-6004: README); null: never"))
+        doc="a suspect_estimate warning when the evidence diagnostic (the probe, and the latest profile where "
+            "measured) leaves some pose axis open in at least this fraction of the frames with evidence "
+            "(filter/health.py; chosen on benchmark seeds 3000-3005 and 5000-5009, checked on 6000-6004: README); "
+            "null: never"))
 
 
 @dataclass(frozen=True)

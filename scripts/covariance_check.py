@@ -32,6 +32,7 @@ from mvtop_cli.estimator.prior import GraspPriorModel
 from mvtop_cli.filter.health import is_suspect
 from mvtop_cli.geometry import se3
 from mvtop_cli.pipelines.evaluate import evaluate
+from mvtop_cli.pipelines.track import pinned_frames
 
 
 def nees_with(run: Path, log: Path, covariance: np.ndarray) -> float:
@@ -98,9 +99,8 @@ def main() -> None:
             added = np.diag(prior**2) if flagged else evidence_covariance(wider, prior)
             row[f"nees_profile_x{g:g}"] = nees_with(run, log, particles + added)
         if args.suspect is not None:
-            frames = summary["evidence"]["per_frame"]["rows"]
-            open_frames = sum(r[2] is None or r[3] is None for r in frames)
-            row["suspect"] = is_suspect(open_frames, len(frames), args.suspect)
+            pinned = pinned_frames(summary["evidence"])
+            row["suspect"] = is_suspect(sum(not p for p in pinned), len(pinned), args.suspect)
             f = summary["final"]["T_ee_object"]
             T_ee_est = se3.from_quat_xyzw(np.array(f["quaternion_xyzw"]), np.array(f["translation_m"]))
             added = (prior_model.covariance_about(T_ee_est) if row["suspect"] or "rival_mode" in last_flags

@@ -1,7 +1,8 @@
 """How the run-level `suspect_estimate` warning (filter/health.py: suspect_warning) separates the
 runs of `mvtop benchmark accuracy` folders that end far off from those within the clearance,
-recomputed from each run's summary.json (the per-frame evidence diagnostic: a frame whose widest
-translation or rotation width is null left some axis open) and eval report, so folders made
+recomputed from each run's summary.json (the per-frame evidence diagnostic's ``pinned`` column;
+in folders written before it, a frame whose widest translation or rotation width is null left
+some axis open) and eval report, so folders made
 before the warning existed count too. Far off: final insertion error above FAR x the clearance
 (5); within: at most the clearance. Prints, per source and method, the far-off runs flagged and
 the within-clearance runs flagged (false alarms), at each --thresholds value.
@@ -23,6 +24,7 @@ import json
 from pathlib import Path
 
 from mvtop_cli.filter.health import suspect_warning
+from mvtop_cli.pipelines.track import pinned_frames
 
 
 def records(source: Path) -> list[dict]:
@@ -42,8 +44,7 @@ def records(source: Path) -> list[dict]:
         report = json.loads((run / "eval" / "report.json").read_text())
         out.append({"source": str(source), "run": run.name, "method": run.name.rsplit("_", 1)[1],
                     "ratio": report["final"]["insertion_error_mm"] / report["clearance_mm"],
-                    "pinned": [r[2] is not None and r[3] is not None
-                               for r in summary["evidence"]["per_frame"]["rows"]],
+                    "pinned": pinned_frames(summary["evidence"]),
                     "other": other_cause(summary.get("suspect", {}).get("causes", []))})
     return out
 

@@ -23,7 +23,9 @@ coordinates free: at each offset, the best score a small search of the other coo
 (the profile likelihood, whose fall gives an axis's marginal width rather than its conditional
 one). On a simulated touch-only conn1 grasp (M-TOP, seed 1097) that ended 1.67 mm off along the
 connector's length, every pure x step of 0.5 mm cost 8-13 nats, while the truth scored 1 nat above
-the estimate and the profile fell by 1.9 nats at 1 mm and 4.6 at 2 mm.
+the estimate and the profile fell by 1.9 nats at 1 mm and 4.6 at 2 mm. An axis that the latest
+profile leaves open counts as open (``EvidenceReport.pinned``) until the next profile, towards the
+run's ``suspect_estimate`` warning as well as into the covariance.
 """
 
 from __future__ import annotations
@@ -76,8 +78,11 @@ class EvidenceReport:
 
     @property
     def pinned(self) -> bool:
-        """Whether the likelihood falls along all six axes at the probe's step (no ``inf`` width)."""
-        return bool(np.all(np.isfinite(self.likelihood_sigma)))
+        """Whether the evidence pins all six axes: the likelihood falls along each at the probe's
+        step and, where the profile was measured, at every profile offset (no ``inf`` in
+        ``widths``). A profile that finds a pose as good as the estimate within its reach along an
+        axis leaves that axis open however sharp the one-axis probe is (a ridge)."""
+        return bool(np.all(np.isfinite(self.widths)))
 
     @property
     def widths(self) -> np.ndarray:

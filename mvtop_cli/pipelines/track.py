@@ -84,17 +84,32 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
 def evidence_report(results: list[FrameEstimate]) -> dict:
     """summary.json's ``evidence``: the final frame's diagnostic in full (per-sensor IoU at the
     estimate, the likelihood's width per axis, ``estimator/evidence.py``) and, per frame, the
-    worst sensor IoU and the widest translation [m] / rotation [deg] width (null: no evidence,
-    or a flat likelihood); and the first frame's leave-one-out gains per sensor [nats]
-    (``search.disagreement_margin``; null: the check did not run)."""
+    worst sensor IoU, the probe's widest translation [m] / rotation [deg] width (null: no evidence,
+    or a flat likelihood) and whether the evidence pinned every axis (``EvidenceReport.pinned``:
+    the probe's and the latest profile's widths, what the ``suspect_estimate`` warning counts); and
+    the first frame's leave-one-out gains per sensor [nats] (``search.disagreement_margin``; null:
+    the check did not run)."""
     num = finite_or_none
     frames = [[r.index, num(r.evidence.min_iou), num(r.evidence.sigma_translation_m),
-               num(r.evidence.sigma_rotation_deg)] for r in results if r.evidence is not None]
+               num(r.evidence.sigma_rotation_deg), r.evidence.pinned] for r in results if r.evidence is not None]
     final = next((r.evidence.as_dict() for r in reversed(results) if r.evidence is not None), None)
     checked = next((r for r in results if getattr(r, "leave_one_out", None) is not None), None)
     left_out = None if checked is None else {"frame": checked.index, "others_gain_nats": checked.leave_one_out}
-    return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg"],
+    return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg",
+                                                      "pinned"],
                                           "rows": frames}, "leave_one_out": left_out}
+
+
+def pinned_frames(evidence: dict) -> list[bool]:
+    """Per frame with evidence, whether it pinned every pose axis, from a summary.json ``evidence``
+    block (``evidence_report``): its ``pinned`` column, or for folders written before it, the
+    probe's widths (a null width left an axis open)."""
+    per_frame = evidence["per_frame"]
+    columns, rows = per_frame["columns"], per_frame["rows"]
+    if "pinned" in columns:
+        k = columns.index("pinned")
+        return [bool(r[k]) for r in rows]
+    return [r[2] is not None and r[3] is not None for r in rows]
 
 
 def extrinsics_report(last: FrameEstimate) -> dict:

@@ -44,6 +44,19 @@ def test_a_flat_axis_is_infinite_and_sets_the_widest_width():
     assert EvidenceReport({"front": 0.9}, 10.0, np.where(np.isinf(widths), 1e-3, widths)).pinned
 
 
+def test_an_axis_the_profile_leaves_open_is_not_pinned():
+    """The probe pins every axis, the profile finds a pose as good as the estimate along x: the
+    report's widths take the profile's, and the axis is open."""
+    probe = np.array([1e-4, 1e-4, 1e-4, 0.005, 0.005, 0.005])
+    profile = np.array([np.inf, 2e-4, 5e-5, 0.004, 0.01, 0.002])
+    report = EvidenceReport({"left": 0.98}, 10.0, probe, profile)
+    assert not report.pinned
+    np.testing.assert_array_equal(report.widths, np.maximum(probe, profile))
+    assert report.sigma_translation_m == pytest.approx(1e-4)  # the probe's own reading is unchanged
+    assert EvidenceReport({"left": 0.98}, 10.0, probe, np.where(np.isinf(profile), 1e-3, profile)).pinned
+    assert EvidenceReport({"left": 0.98}, 10.0, probe).pinned
+
+
 def test_an_estimate_in_a_trough_reads_as_unpinned():
     """Where the log-likelihood rises on both sides (the estimate sits in a trough, not on a
     peak), the axis is not pinned: its width is inf."""

@@ -12,7 +12,7 @@ from mvtop_cli.config import load_config
 from mvtop_cli.estimator.estimator import FrameEstimate
 from mvtop_cli.estimator.evidence import EvidenceReport
 from mvtop_cli.filter.health import RivalMode
-from mvtop_cli.pipelines.track import run_summary, warning_report
+from mvtop_cli.pipelines.track import pinned_frames, run_summary, warning_report
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -76,3 +76,35 @@ def test_suspect_keeps_every_cause_that_holds_at_the_end(tmp_path: Path):
                                   "evidence_frames": 3, "unpinned_threshold": 0.4}
     (record,) = [w for w in summary["warnings"] if w["kind"] == "suspect_estimate"]
     assert record["rival_frame"] == 1 and record["rival_translation_mm"] == 2.5
+
+
+def test_an_axis_the_profile_leaves_open_counts_as_open(tmp_path: Path):
+    """Touch alone: the one-axis probe pins every axis, but the profile (measured on a check frame and
+    kept until the next) finds a pose as good as the estimate along x. Those frames count as open,
+    in summary.json's per-frame ``pinned`` column and towards the ``suspect_estimate`` warning."""
+    cfg = load_config(ROOT / "configs" / "conn1.yaml")
+    profile = np.array([np.inf, 8e-5, 2e-4, 0.004, 0.03, 0.003])
+    frames = [replace(f, evidence=replace(f.evidence, profile_sigma=profile if i >= 2 else None))
+              for i, f in enumerate(_frames([False] * 5))]
+    summary = run_summary(frames, cfg, tmp_path / "log.mcap", 1.0, [])
+    per_frame = summary["evidence"]["per_frame"]
+    assert per_frame["columns"][-1] == "pinned"
+    assert [r[-1] for r in per_frame["rows"]] == [True, True, False, False, False]
+    # the probe's own widths stay as they were: every axis within its step
+    assert all(r[2] is not None and r[3] is not None for r in per_frame["rows"])
+    assert pinned_frames(summary["evidence"]) == [True, True, False, False, False]
+    assert summary["suspect"] == {"raised": True, "causes": ["unpinned"], "unpinned_frames": 3, "evidence_frames": 5,
+                                  "unpinned_threshold": 0.4}
+    # a profile that finds nothing as good within its reach pins the axis
+    pinned = [replace(f, evidence=replace(f.evidence, profile_sigma=np.where(np.isinf(profile), 1e-3, profile)))
+              for f in frames]
+    summary = run_summary(pinned, cfg, tmp_path / "log.mcap", 1.0, [])
+    assert "suspect_estimate" not in summary["warning_counts"]
+    assert pinned_frames(summary["evidence"]) == [True] * 5
+
+
+def test_pinned_frames_of_a_folder_written_before_the_column():
+    """Older summary.json files have no ``pinned`` column: a null probe width marks an open frame."""
+    evidence = {"per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg"],
+                              "rows": [[0, 0.9, 1e-4, 0.2], [1, 0.9, None, 0.2], [2, 0.9, 1e-4, None]]}}
+    assert pinned_frames(evidence) == [True, False, False]
