@@ -16,7 +16,7 @@ kept (benchmarks/accuracy/suspect/), or a benchmark's results.jsonl.gz whose run
 whose order the fraction does not need). A run with another cause (a rival mode, sensors that
 disagree, a camera left turned) counts as flagged at every threshold.
 Usage: .venv/bin/python scripts/suspect_check.py SOURCE [SOURCE ...] [--thresholds 0.3,0.4,0.5]
-       [--far 5] [--export OUT.jsonl.gz]"""
+       [--far 5] [--probe-only] [--export OUT.jsonl.gz]"""
 import argparse
 import collections
 import gzip
@@ -27,8 +27,9 @@ from mvtop_cli.filter.health import suspect_warning
 from mvtop_cli.pipelines.track import pinned_frames
 
 
-def records(source: Path) -> list[dict]:
-    """One record per finished run of ``source``."""
+def records(source: Path, probe_only: bool = False) -> list[dict]:
+    """One record per finished run of ``source``; from run folders with ``probe_only``, a frame
+    is open only where the probe's widths are (``pipelines.track.pinned_frames``)."""
     if source.suffix == ".gz":
         with gzip.open(source, "rt") as f:
             lines = [json.loads(line) for line in f]
@@ -44,7 +45,7 @@ def records(source: Path) -> list[dict]:
         report = json.loads((run / "eval" / "report.json").read_text())
         out.append({"source": str(source), "run": run.name, "method": run.name.rsplit("_", 1)[1],
                     "ratio": report["final"]["insertion_error_mm"] / report["clearance_mm"],
-                    "pinned": pinned_frames(summary["evidence"]),
+                    "pinned": pinned_frames(summary["evidence"], probe_only),
                     "other": other_cause(summary.get("suspect", {}).get("causes", []))})
     return out
 
@@ -70,11 +71,14 @@ def main() -> None:
     ap.add_argument("--thresholds", default="0.4")
     ap.add_argument("--far", type=float, default=5.0)
     ap.add_argument("--export", type=Path)
+    ap.add_argument("--probe-only", action="store_true",
+                    help="run folders: count a frame open only where the probe's widths are, as before the "
+                         "profile's open axes counted")
     a = ap.parse_args()
     thresholds = [float(t) for t in a.thresholds.split(",")]
     everything = []
     for source in a.sources:
-        recs = records(source)
+        recs = records(source, a.probe_only)
         everything += recs
         by_source = collections.defaultdict(list)
         for r in recs:

@@ -100,13 +100,13 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
                                           "rows": frames}, "leave_one_out": left_out}
 
 
-def pinned_frames(evidence: dict) -> list[bool]:
+def pinned_frames(evidence: dict, probe_only: bool = False) -> list[bool]:
     """Per frame with evidence, whether it pinned every pose axis, from a summary.json ``evidence``
-    block (``evidence_report``): its ``pinned`` column, or for folders written before it, the
-    probe's widths (a null width left an axis open)."""
+    block (``evidence_report``): its ``pinned`` column, or with ``probe_only`` or for folders
+    written before that column, the probe's widths alone (a null width left an axis open)."""
     per_frame = evidence["per_frame"]
     columns, rows = per_frame["columns"], per_frame["rows"]
-    if "pinned" in columns:
+    if "pinned" in columns and not probe_only:
         k = columns.index("pinned")
         return [bool(r[k]) for r in rows]
     return [r[2] is not None and r[3] is not None for r in rows]

@@ -93,6 +93,7 @@ def test_an_axis_the_profile_leaves_open_counts_as_open(tmp_path: Path):
     # the probe's own widths stay as they were: every axis within its step
     assert all(r[2] is not None and r[3] is not None for r in per_frame["rows"])
     assert pinned_frames(summary["evidence"]) == [True, True, False, False, False]
+    assert pinned_frames(summary["evidence"], probe_only=True) == [True] * 5  # the rule before the profile counted
     assert summary["suspect"] == {"raised": True, "causes": ["unpinned"], "unpinned_frames": 3, "evidence_frames": 5,
                                   "unpinned_threshold": 0.4}
     # a profile that finds nothing as good within its reach pins the axis
