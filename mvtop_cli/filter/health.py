@@ -312,8 +312,8 @@ class RivalMode:
         if self.sensor is not None:
             return (f"other than {self.sensor!r} {self.others_gain:.1f} nats better than the estimate does "
                     f"({self.sensor!r} alone holds the estimate there)")
-        if self.nats_below >= 0:
-            return f"within {self.nats_below:.1f} nats of it"
+        if round(self.nats_below, 1) >= 0:  # a lead that rounds to 0.0 is no lead in words
+            return f"within {abs(self.nats_below):.1f} nats of it"
         return f"{-self.nats_below:.1f} nats better than it"
 
 

@@ -267,6 +267,9 @@ def test_a_rival_mode_is_a_frame_warning_and_makes_the_run_suspect():
     assert w["kind"] == "rival_mode" and w["frame"] == 19 and w["nats_below"] == 0.5
     assert "2.40 mm / 3.30 deg from the estimate explains the sensors within 0.5 nats of it" in w["detail"]
     assert "13.0 nats better than it" in RivalMode(9, 1.5, 0.2, -13.0).warning()["detail"]
+    # a lead that rounds to nothing reads as a tie, not as "0.0 nats better"
+    assert "explains the sensors within 0.0 nats of it" in RivalMode(29, 2.45, 0.35, -0.03).warning()["detail"]
+    assert "0.1 nats better than it" in RivalMode(29, 2.45, 0.35, -0.06).warning()["detail"]
     # the run-level record: raised by the last check's rival even where every frame pinned the estimate
     run = suspect_warning([True] * 30, 0.4, rival)
     assert run["kind"] == "suspect_estimate" and run["frame"] is None and run["rival_frame"] == 19
