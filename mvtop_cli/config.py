@@ -304,6 +304,10 @@ class FilterConfig:
         "settled frame (no search, switch, collapse, forced tempering, warning of suspicion or rival) is refined into "
         "this many particles, drawn from the density of all predicted ones; every other frame into num_particles "
         "again; 0: off, every frame num_particles (README: Tracking mode)")))
+    posterior_sweeps: int | None = field(default=4, metadata=_rng(1, 1000, doc=(
+        "at most this many Metropolis sweeps of the refinement at the posterior (tempering exponent 1, counting the "
+        "sweep of the stage that reaches it); the iterations left after them are not run (the first frame's 24 "
+        "iterations reach it in 4-6 stages); null: all of them run (README: Sweeps at the posterior)")))
     refine_shrink: float = field(default=0.5, metadata=_rng(
         0.0, 1.0, lo_open=True, doc="factor of the refinement's Metropolis proposal scale when its acceptance is low"))
     refine_target_ess_fraction: float = field(default=0.5, metadata=_rng(

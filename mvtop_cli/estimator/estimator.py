@@ -166,7 +166,7 @@ class Estimator:
             jump_sigmas=f.jump_sigmas, refine_iterations=f.refine_iterations, refine_shrink=f.refine_shrink,
             floor_translation_m=f.floor_translation_m, floor_rotation_rad=np.radians(f.floor_rotation_deg),
             refine_target_ess_fraction=f.refine_target_ess_fraction,
-            collapse_retry_iterations=f.collapse_retry_iterations, fold=self.fold,
+            collapse_retry_iterations=f.collapse_retry_iterations, posterior_sweeps=f.posterior_sweeps, fold=self.fold,
         )
         self.prior = GraspPriorModel(cfg.grasp_prior, s.bound)
         self.observations = ObservationModel(cfg, scene, frame_pose or _no_moving_frames)

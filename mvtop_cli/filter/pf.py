@@ -80,6 +80,9 @@ class ParticleFilter:
       the particles; ``ess_collapsed`` stays flagged and ``collapse_retry`` says whether
       the redo kept its ESS above the threshold. Frames without a collapse are
       unaffected.
+    posterior_sweeps : int or None
+      At most this many of ``refine``'s Metropolis sweeps at the posterior (tempering
+      exponent 1); None: all its iterations run (``smc.TemperedRefinement``).
     fold : callable or None
       The model's canonicalisation of poses (``particles.Fold``; a symmetric object's
       ``estimator.symmetry.SymmetryFold``): the estimate and covariance are those of the
@@ -104,6 +107,7 @@ class ParticleFilter:
         floor_rotation_rad: float = float(np.deg2rad(0.05)),
         refine_target_ess_fraction: float = 0.5,
         collapse_retry_iterations: int = 0,
+        posterior_sweeps: int | None = None,
         fold: Fold | None = None,
     ) -> None:
         if not isinstance(rng, np.random.Generator):
@@ -139,7 +143,7 @@ class ParticleFilter:
             resampling, rng, shrink=self.refine_shrink,
             floor_translation_m=self.floor_translation_m, floor_rotation_rad=self.floor_rotation_rad,
             target_ess_fraction=self.refine_target_ess_fraction, collapse_threshold=self.collapse_threshold,
-            collapse_retry_iterations=self.collapse_retry_iterations, fold=fold,
+            collapse_retry_iterations=self.collapse_retry_iterations, posterior_sweeps=posterior_sweeps, fold=fold,
         )
 
     # -- the loop ---------------------------------------------------------------------

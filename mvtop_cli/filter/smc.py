@@ -206,6 +206,9 @@ class TemperedRefinement:
     collapse_retry_iterations : int
       0: an ESS collapse is only flagged; more: the frame is redone once with
       ``max(collapse_retry_iterations, 3 * iterations)`` iterations.
+    posterior_sweeps : int or None
+      At most this many Metropolis sweeps at ``b = 1`` (counting the sweep of the stage that
+      reaches it); the iterations left after them are not run. None: every iteration runs.
     fold : callable or None
       The model's canonicalisation of poses (``particles.Fold``): the predicted particles
       are folded onto their mean before the chart, and the result's spread is that of the
@@ -223,9 +226,12 @@ class TemperedRefinement:
         target_ess_fraction: float,
         collapse_threshold: Callable[[int], float],
         collapse_retry_iterations: int,
+        posterior_sweeps: int | None = None,
         fold: Fold | None = None,
     ) -> None:
         check_shrink(shrink)
+        if posterior_sweeps is not None and int(posterior_sweeps) < 1:
+            raise ValueError(f"posterior_sweeps must be >= 1 or None, got {posterior_sweeps!r}")
         self.resampling = resampling
         self.rng = rng
         self.shrink = float(shrink)
@@ -234,6 +240,7 @@ class TemperedRefinement:
         self.target_ess_fraction = float(target_ess_fraction)
         self._collapse_threshold = collapse_threshold
         self.collapse_retry_iterations = int(collapse_retry_iterations)
+        self.posterior_sweeps = None if posterior_sweeps is None else int(posterior_sweeps)
         self.fold = fold
 
     def __call__(
@@ -269,7 +276,8 @@ class TemperedRefinement:
            2.38 / sqrt(6) and multiplied by ``shrink`` when its acceptance rate drops
            below 0.15, divided above 0.5) or an independent draw from
            ``N(mean, 1.5 (C + F))``; accepted with the Metropolis-Hastings ratio of
-           ``p^ L^b``. Iterations left once ``b = 1`` are extra sweeps at the posterior.
+           ``p^ L^b``. Iterations left once ``b = 1`` are extra sweeps at the posterior,
+           at most ``posterior_sweeps`` sweeps at ``b = 1`` in all.
 
         Why this scheme: the tempering exponents add up to one, so the final particles
         sample ``p^ L`` - the observation counts once, with no overconfidence from
@@ -364,7 +372,10 @@ class TemperedRefinement:
         beta, log_evidence, scale = 0.0, 0.0, _RW_SCALE
         betas, stage_ess, acceptance = [], [], []
         ess = float(n)
+        sweeps_at_one, done = 0, 0
         for it in range(iterations):
+            if beta >= 1.0 and self.posterior_sweeps is not None and sweeps_at_one >= self.posterior_sweeps:
+                break
             if beta < 1.0:
                 remaining = 1.0 - beta
                 delta = _next_increment(uniform, state.log_lik, remaining, self.target_ess_fraction)
@@ -387,6 +398,8 @@ class TemperedRefinement:
                 prior, chart, log_likelihood_fn, beta, scale, floor_var, rng
             )
             n_invalid += bad
+            done += 1
+            sweeps_at_one += beta >= 1.0
             acceptance.append(rate_all)
             if rate_rw < _ACCEPT_LOW:
                 scale *= shrink
@@ -399,8 +412,8 @@ class TemperedRefinement:
             flags.append("ess_collapsed")
         diagnostics.update(
             invalid_log_likelihood=n_invalid,
-            likelihood_evaluations=iterations + 1,
-            evaluated_poses=n * (iterations + 1),
+            likelihood_evaluations=done + 1,
+            evaluated_poses=n * (done + 1),
             min_ess=float(min(stage_ess, default=float(n))),
             ess_collapse_threshold=self._collapse_threshold(n),
             betas=betas,

@@ -138,6 +138,37 @@ def test_refine_into_fewer_particles_samples_the_same_posterior():
         pf.assimilate(prior, log_likelihood, 0, n_out=300)
 
 
+def test_posterior_sweeps_end_the_refinement_once_it_has_swept_the_posterior_enough():
+    """``posterior_sweeps``: with a budget of 24 iterations, the refinement stops after that many
+    Metropolis sweeps at tempering exponent 1 (the stage reaching it counts), scores that many
+    fewer poses, and still has the exact posterior's spread and mean; without it all 24 run."""
+    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
+
+    sds, means = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng)
+        pf = ParticleFilter(STILL, "systematic", 0.5, rng, posterior_sweeps=4)
+        result = pf.refine(prior, log_likelihood, iterations=24)
+        d = result.diagnostics
+        stages = len(d["betas"])  # the stage whose exponent reaches 1 is the last tempered one
+        assert d["betas"][-1] == 1.0 and stages < 20
+        assert len(d["acceptance_rates"]) == stages - 1 + 4
+        assert d["likelihood_evaluations"] == stages + 4 and d["evaluated_poses"] == 1000 * (stages + 4)
+        xi = _tangent(result.particles.poses, T_NOMINAL)
+        sds.append(xi.std(axis=0))
+        means.append(xi.mean(axis=0))
+    ratio = np.mean(sds, axis=0) / post_sd
+    assert np.all((ratio > 0.9) & (ratio < 1.12)), ratio
+    assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
+    rng = np.random.default_rng(0)
+    full = ParticleFilter(STILL, "systematic", 0.5, rng).refine(
+        init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng), log_likelihood, iterations=24)
+    assert full.diagnostics["likelihood_evaluations"] == 25
+    with pytest.raises(ValueError, match="posterior_sweeps must be >= 1"):
+        ParticleFilter(STILL, "systematic", 0.5, rng, posterior_sweeps=0)
+
+
 def test_refine_hands_back_the_log_likelihoods_of_its_particles():
     """The refined particles carry the log-likelihoods the sampler computed for them, equal
     to a fresh evaluation (the estimator's re-search check reads them instead of scoring
