@@ -94,45 +94,45 @@ def _gaussian_posterior():
     return sp, 1.0 / np.sqrt(sp**-2 + sl**-2), y * sp**2 / (sp**2 + sl**2), log_likelihood
 
 
+def _samples_the_posterior(refine, seeds, low=0.9):
+    """Refine 1000 particles drawn from ``_gaussian_posterior``'s prior with
+    ``refine(prior, log_likelihood, rng)`` for each of ``seeds``, and assert that the results
+    have the exact posterior's spread (ratio of the mean std within (``low``, 1.12)) and mean
+    (within 0.15 of its std); returns the results."""
+    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
+    results = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        results.append(refine(init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng), log_likelihood, rng))
+    xi = [_tangent(r.particles.poses, T_NOMINAL) for r in results]
+    ratio = np.mean([x.std(axis=0) for x in xi], axis=0) / post_sd
+    assert np.all((ratio > low) & (ratio < 1.12)), ratio
+    assert np.all(np.abs(np.mean([x.mean(axis=0) for x in xi], axis=0) - post_mean) < 0.15 * post_sd)
+    return results
+
+
 def test_refine_matches_the_analytic_gaussian_posterior():
     """Tempering uses the observation once: the refined particles have the spread of the
     exact posterior, not the ~1/sqrt(k) narrower one of k repeated updates."""
-    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
-
-    sds, means = [], []
-    for seed in range(4):
-        rng = np.random.default_rng(seed)
-        prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng)
-        result = ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, log_likelihood, iterations=8)
-        xi = _tangent(result.particles.poses, T_NOMINAL)
-        sds.append(xi.std(axis=0))
-        means.append(xi.mean(axis=0))
+    results = _samples_the_posterior(
+        lambda prior, ll, rng: ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, ll, iterations=8), range(4))
+    for result in results:
         assert result.diagnostics["betas"][-1] == 1.0
         assert result.diagnostics["likelihood_evaluations"] == 9
-    ratio = np.mean(sds, axis=0) / post_sd
-    assert np.all((ratio > 0.9) & (ratio < 1.12)), ratio
-    assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
 
 
 def test_refine_into_fewer_particles_samples_the_same_posterior():
     """``n_out`` (the estimator's tracking mode): 1000 predicted particles refined into 300
     have the exact posterior's spread and mean, as the full count does; the single update
     cannot change the count."""
-    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
-
-    sds, means = [], []
-    for seed in range(8):
-        rng = np.random.default_rng(seed)
-        prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng)
-        result = ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, log_likelihood, iterations=8, n_out=300)
+    results = _samples_the_posterior(
+        lambda prior, ll, rng: ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, ll, iterations=8, n_out=300),
+        range(8), low=0.88)
+    for result in results:
         assert len(result.particles) == 300 and len(result.log_likelihoods) == 300
         assert result.diagnostics["evaluated_poses"] == 9 * 300
-        xi = _tangent(result.particles.poses, T_NOMINAL)
-        sds.append(xi.std(axis=0))
-        means.append(xi.mean(axis=0))
-    ratio = np.mean(sds, axis=0) / post_sd
-    assert np.all((ratio > 0.88) & (ratio < 1.12)), ratio
-    assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
+    sp, _, _, log_likelihood = _gaussian_posterior()
+    prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, np.random.default_rng(0))
     pf = ParticleFilter(STILL, "systematic", 0.5, np.random.default_rng(0))
     with pytest.raises(ValueError, match="keeps the particle count: n_out needs iterations > 0"):
         pf.assimilate(prior, log_likelihood, 0, n_out=300)
@@ -142,31 +142,20 @@ def test_posterior_sweeps_end_the_refinement_once_it_has_swept_the_posterior_eno
     """``posterior_sweeps``: with a budget of 24 iterations, the refinement stops after that many
     Metropolis sweeps at tempering exponent 1 (the stage reaching it counts), scores that many
     fewer poses, and still has the exact posterior's spread and mean; without it all 24 run."""
-    sp, post_sd, post_mean, log_likelihood = _gaussian_posterior()
-
-    sds, means = [], []
-    for seed in range(4):
-        rng = np.random.default_rng(seed)
-        prior = init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng)
-        pf = ParticleFilter(STILL, "systematic", 0.5, rng, posterior_sweeps=4)
-        result = pf.refine(prior, log_likelihood, iterations=24)
+    results = _samples_the_posterior(
+        lambda prior, ll, rng: ParticleFilter(STILL, "systematic", 0.5, rng, posterior_sweeps=4).refine(
+            prior, ll, iterations=24), range(4))
+    for result in results:
         d = result.diagnostics
         stages = len(d["betas"])  # the stage whose exponent reaches 1 is the last tempered one
         assert d["betas"][-1] == 1.0 and stages < 20
         assert len(d["acceptance_rates"]) == stages - 1 + 4
         assert d["likelihood_evaluations"] == stages + 4 and d["evaluated_poses"] == 1000 * (stages + 4)
-        xi = _tangent(result.particles.poses, T_NOMINAL)
-        sds.append(xi.std(axis=0))
-        means.append(xi.mean(axis=0))
-    ratio = np.mean(sds, axis=0) / post_sd
-    assert np.all((ratio > 0.9) & (ratio < 1.12)), ratio
-    assert np.all(np.abs(np.mean(means, axis=0) - post_mean) < 0.15 * post_sd)
-    rng = np.random.default_rng(0)
-    full = ParticleFilter(STILL, "systematic", 0.5, rng).refine(
-        init_from_prior(T_NOMINAL, sp[0], sp[3], 1000, rng), log_likelihood, iterations=24)
-    assert full.diagnostics["likelihood_evaluations"] == 25
+    full = _samples_the_posterior(
+        lambda prior, ll, rng: ParticleFilter(STILL, "systematic", 0.5, rng).refine(prior, ll, iterations=24), [0])
+    assert full[0].diagnostics["likelihood_evaluations"] == 25
     with pytest.raises(ValueError, match="posterior_sweeps must be >= 1"):
-        ParticleFilter(STILL, "systematic", 0.5, rng, posterior_sweeps=0)
+        ParticleFilter(STILL, "systematic", 0.5, np.random.default_rng(0), posterior_sweeps=0)
 
 
 def test_refine_hands_back_the_log_likelihoods_of_its_particles():
