@@ -372,9 +372,9 @@ class TemperedRefinement:
         beta, log_evidence, scale = 0.0, 0.0, _RW_SCALE
         betas, stage_ess, acceptance = [], [], []
         ess = float(n)
-        sweeps_at_one, done = 0, 0
+        sweeps_at_one = 0
         for it in range(iterations):
-            if beta >= 1.0 and self.posterior_sweeps is not None and sweeps_at_one >= self.posterior_sweeps:
+            if self.posterior_sweeps is not None and sweeps_at_one >= self.posterior_sweeps:
                 break
             if beta < 1.0:
                 remaining = 1.0 - beta
@@ -398,7 +398,6 @@ class TemperedRefinement:
                 prior, chart, log_likelihood_fn, beta, scale, floor_var, rng
             )
             n_invalid += bad
-            done += 1
             sweeps_at_one += beta >= 1.0
             acceptance.append(rate_all)
             if rate_rw < _ACCEPT_LOW:
@@ -412,8 +411,8 @@ class TemperedRefinement:
             flags.append("ess_collapsed")
         diagnostics.update(
             invalid_log_likelihood=n_invalid,
-            likelihood_evaluations=done + 1,
-            evaluated_poses=n * (done + 1),
+            likelihood_evaluations=len(acceptance) + 1,
+            evaluated_poses=n * (len(acceptance) + 1),
             min_ess=float(min(stage_ess, default=float(n))),
             ess_collapse_threshold=self._collapse_threshold(n),
             betas=betas,
