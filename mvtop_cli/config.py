@@ -353,7 +353,12 @@ class SearchConfig:
     first_frame_iteration_factor: int = field(default=3, metadata=_rng(
         1, 100,
         doc="refinement iterations on the first frame (and after a re-search), in units of filter.refine_iterations"))
-    rounds: int = field(default=12, metadata=_rng(0, 1000, doc="rounds of a first-frame search"))
+    first_frame_rounds: int = field(default=10, metadata=_rng(0, 1000, doc=(
+        "rounds of the first frame's search of the grasp prior (the refinement continues from its basin; README: Ten "
+        "rounds of the first frame's search)")))
+    rounds: int = field(default=12, metadata=_rng(0, 1000, doc=(
+        "rounds of the rival check's and the dissent search's searches of the grasp prior (their best poses are "
+        "judged as found)")))
     elite_fraction: float = field(default=0.1, metadata=_rng(0.0, 1.0, lo_open=True))
     widen: float = field(default=1.5, metadata=_rng(
         0.0, 100.0, lo_open=True, doc="sigma factor of the elite's Gaussian"))

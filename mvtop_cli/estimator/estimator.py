@@ -494,7 +494,7 @@ class Estimator:
         instead of from the whole prior, which a few hundred particles cannot cover at
         sub-millimetre scale."""
         n = self.cfg.filter.num_particles
-        poses, ll = self._prior_search(bounded)
+        poses, ll = self._prior_search(bounded, rounds=self.cfg.search.first_frame_rounds)
         if not np.isfinite(ll).any():
             return self.prior.sample(n, self.rng)
         return tempered_resample(poses, ll, n, self.cfg.filter.resampling, self.rng)
@@ -503,7 +503,7 @@ class Estimator:
                       init_factor: int | None = None, rounds: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One cross-entropy search from fresh grasp-prior samples: poses and log-likelihoods
         (drawn from ``rng``, by default the filter's generator; ``init_factor`` samples per
-        particle for ``rounds`` rounds, by default the first frame's ``search.init_factor`` and
+        particle for ``rounds`` rounds, by default the rival check's ``search.init_factor`` and
         ``search.rounds``)."""
         t0 = time.perf_counter()
         rng = self.rng if rng is None else rng

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from mvtop_cli.benchmarks.accuracy import read_results
+from mvtop_cli.config import SearchConfig
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
@@ -47,11 +48,15 @@ def test_benchmark_speed_on_a_log_times_every_stage():
         assert abs(sum(part[k] for k in stages) - part["step_s"]) <= 5e-6, part
         assert part["likelihood_s"] <= part["step_s"]
         assert part["poses_scored"] >= 500 and part["likelihood_calls"] >= 1
-    # a search of the grasp prior scores 3,000 + 12 x 2,700 poses (500 particles, init_factor 6, 12 rounds):
-    # the first frame runs one, the rival check one (on one of the two later frames)
-    prior_search = 3_000 + 12 * 2_700
-    assert prior_search < prof["first_frame"]["poses_scored"] < 2 * prior_search
-    assert prof["later_frames_mean"]["poses_scored"] > prior_search / 2
+    # a search of the grasp prior scores M = 500 x init_factor poses, then M less its elite tenth a round: the
+    # first frame runs one of search.first_frame_rounds (3,000 + 10 x 2,700), the rival check one of search.rounds
+    # (3,000 + 12 x 2,700) on one of the two later frames
+    s = SearchConfig()
+    population = 500 * s.init_factor
+    first_search, rival_search = (population + rounds * (population - round(s.elite_fraction * population))
+                                  for rounds in (s.first_frame_rounds, s.rounds))
+    assert first_search < prof["first_frame"]["poses_scored"] < 2 * first_search
+    assert prof["later_frames_mean"]["poses_scored"] > rival_search / 2
     # the rival check's search is timed with the checks, not with the filter's re-search (1,850 poses a frame)
     assert prof["later_frames_mean"]["checks_s"] > prof["later_frames_mean"]["search_s"]
     assert set(prof["masking_ms_per_frame"]) >= {"camera_proposals_ms", "tactile_ms"}
