@@ -503,8 +503,8 @@ class Estimator:
                       init_factor: int | None = None, rounds: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One cross-entropy search from fresh grasp-prior samples: poses and log-likelihoods
         (drawn from ``rng``, by default the filter's generator; ``init_factor`` samples per
-        particle for ``rounds`` rounds, by default the rival check's ``search.init_factor`` and
-        ``search.rounds``)."""
+        particle for ``rounds`` rounds, by default ``search.init_factor`` and the rival check's
+        ``search.rounds``; the first frame's search passes ``search.first_frame_rounds``)."""
         t0 = time.perf_counter()
         rng = self.rng if rng is None else rng
         s = self.cfg.search

@@ -18,7 +18,7 @@ of the first frame run (``filter.posterior_sweeps: null``) and with its search a
 (``search.first_frame_rounds``): the wrong mode is where the long chain at the posterior goes
 (filter seeds 1001, 1002 and 1005 of 1001-1006 end the first frame 12-15 deg off), while four
 sweeps leave the particles in the basin the search found (seeds 1001-1008 all within 1.3 deg),
-and so does the search's tenth round (1.2 deg off with every sweep run).
+and so does a search of ten rounds, the default (1.2 deg off with every sweep run).
 """
 
 from __future__ import annotations
