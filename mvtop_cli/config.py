@@ -542,10 +542,10 @@ class OutputConfig:
     evidence_profile_rounds: int = field(default=5, metadata=_rng(1, 1000, doc="rounds of the profile's search"))
     suspect_unpinned_fraction: float | None = field(default=0.4, metadata=_rng(
         0.0, 1.0, lo_open=True,
-        doc="a suspect_estimate warning when the evidence diagnostic (the probe, and the latest profile where "
-            "measured) leaves some pose axis open in at least this fraction of the frames with evidence "
-            "(filter/health.py; chosen on benchmark seeds 3000-3005 and 5000-5009, checked on 6000-6004: README); "
-            "null: never"))
+        doc="a suspect_estimate warning when at least this fraction of the frames with evidence left the pose open: "
+            "some axis the evidence diagnostic (the probe, and the latest profile where measured) does not pin, or a "
+            "rival mode no check has ruled out yet (filter/health.py; chosen on benchmark seeds 3000-3005 and "
+            "5000-5009, checked on 6000-6004: README); null: never"))
 
 
 @dataclass(frozen=True)

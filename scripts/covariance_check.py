@@ -4,7 +4,7 @@ spread alone and with the evidence's widths added, times each of ``--factors``
 estimator/evidence.py), recomputed from each run's summary.json by `mvtop eval`'s own NEES.
 Prints one line per run and, per method and object, the fraction within the chi-square 95 % bound.
 With ``--suspect F`` also the covariance a run reports when at least the fraction F of its frames
-left some pose axis open (``output.suspect_unpinned_fraction``), or whose last frame has a rival mode:
+left some pose axis or a rival mode open (``output.suspect_unpinned_fraction``), or whose last frame has a rival mode:
 the particles' spread plus the grasp prior's about the estimate (``nees_suspect``,
 ``GraspPriorModel.covariance_about`` without a symmetry fold; other runs keep the default widths x3).
 A run whose last frame was flagged reported the particles' spread plus the prior's covariance alone
@@ -32,7 +32,7 @@ from mvtop_cli.estimator.prior import GraspPriorModel
 from mvtop_cli.filter.health import is_suspect
 from mvtop_cli.geometry import se3
 from mvtop_cli.pipelines.evaluate import evaluate
-from mvtop_cli.pipelines.track import pinned_frames
+from mvtop_cli.pipelines.track import closed_frames
 
 
 def nees_with(run: Path, log: Path, covariance: np.ndarray) -> float:
@@ -77,7 +77,8 @@ def main() -> None:
         prior_model = GraspPriorModel(cfg.grasp_prior, cfg.search.bound)
         prior = prior_model.sigma
         with (run / "track.csv").open() as fh:
-            last_flags = list(csv.DictReader(fh))[-1]["flags"].split("|")
+            track = list(csv.DictReader(fh))
+        last_flags = track[-1]["flags"].split("|")
         flagged = "suspect_estimate" in last_flags or "rival_mode" in last_flags
         widths = axis_widths(ev, "likelihood_sigma")
         profile = axis_widths(ev, "profile_sigma") if "profile_sigma_translation_m" in ev else None
@@ -99,8 +100,9 @@ def main() -> None:
             added = np.diag(prior**2) if flagged else evidence_covariance(wider, prior)
             row[f"nees_profile_x{g:g}"] = nees_with(run, log, particles + added)
         if args.suspect is not None:
-            pinned = pinned_frames(summary["evidence"])
-            row["suspect"] = is_suspect(sum(not p for p in pinned), len(pinned), args.suspect)
+            rivals = {int(r["frame"]) for r in track if "rival_mode" in r["flags"].split("|")}
+            closed = closed_frames(summary["evidence"], rivals)
+            row["suspect"] = is_suspect(sum(not p for p in closed), len(closed), args.suspect)
             f = summary["final"]["T_ee_object"]
             T_ee_est = se3.from_quat_xyzw(np.array(f["quaternion_xyzw"]), np.array(f["translation_m"]))
             added = (prior_model.covariance_about(T_ee_est) if row["suspect"] or "rival_mode" in last_flags

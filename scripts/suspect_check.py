@@ -1,35 +1,38 @@
 """How the run-level `suspect_estimate` warning (filter/health.py: suspect_warning) separates the
 runs of `mvtop benchmark accuracy` folders that end far off from those within the clearance,
-recomputed from each run's summary.json (the per-frame evidence diagnostic's ``pinned`` column;
-in folders written before it, a frame whose widest translation or rotation width is null left
-some axis open) and eval report, so folders made
-before the warning existed count too. Far off: final insertion error above FAR x the clearance
+recomputed from each run's summary.json (the per-frame evidence diagnostic's ``pinned`` and
+``rival`` columns: a frame that left some axis or a rival mode open counts; in folders written
+before the ``rival`` column, the frames track.csv flags ``rival_mode``, and before the ``pinned``
+column, a frame whose widest translation or rotation width is null left some axis open) and eval
+report, so folders made before the warning existed count too. Far off: final insertion error above FAR x the clearance
 (5); within: at most the clearance. Prints, per source and method, the far-off runs flagged and
 the within-clearance runs flagged (false alarms), at each --thresholds value.
 
 A source is a benchmark folder (its runs/), a folder of run folders (scripts/config_ablation.py's
 output), a .jsonl.gz written by --export (one line per run: source, run, method, the insertion
-error over the clearance, the per-frame pinned flags, and ``other``: whether a cause beside the
-open frames raises the warning anyway), which keeps what this needs from run folders that are not
-kept (benchmarks/accuracy/suspect/), or a benchmark's results.jsonl.gz whose runs kept
-``benchmark.suspect`` (summary.json ``suspect``: the count of open frames stands for the flags,
-whose order the fraction does not need). A run with another cause (a rival mode, sensors that
-disagree, a camera left turned) counts as flagged at every threshold.
+error over the clearance, the per-frame ``closed`` flags (older exports: ``pinned``), and
+``other``: whether a cause beside the open frames raises the warning anyway), which keeps what
+this needs from run folders that are not kept (benchmarks/accuracy/suspect/), or a benchmark's
+results.jsonl.gz whose runs kept ``benchmark.suspect`` (summary.json ``suspect``: the count of
+open frames stands for the flags, whose order the fraction does not need). A run with another
+cause (a rival mode, sensors that disagree, a camera left turned) counts as flagged at every
+threshold.
 Usage: .venv/bin/python scripts/suspect_check.py SOURCE [SOURCE ...] [--thresholds 0.3,0.4,0.5]
        [--far 5] [--probe-only] [--export OUT.jsonl.gz]"""
 import argparse
 import collections
+import csv
 import gzip
 import json
 from pathlib import Path
 
 from mvtop_cli.filter.health import suspect_warning
-from mvtop_cli.pipelines.track import pinned_frames
+from mvtop_cli.pipelines.track import closed_frames
 
 
 def records(source: Path, probe_only: bool = False) -> list[dict]:
     """One record per finished run of ``source``; from run folders with ``probe_only``, a frame
-    is open only where the probe's widths are (``pipelines.track.pinned_frames``)."""
+    is open only where the probe's widths are or a rival stood (``pipelines.track.closed_frames``)."""
     if source.suffix == ".gz":
         with gzip.open(source, "rt") as f:
             lines = [json.loads(line) for line in f]
@@ -45,7 +48,7 @@ def records(source: Path, probe_only: bool = False) -> list[dict]:
         report = json.loads((run / "eval" / "report.json").read_text())
         out.append({"source": str(source), "run": run.name, "method": run.name.rsplit("_", 1)[1],
                     "ratio": report["final"]["insertion_error_mm"] / report["clearance_mm"],
-                    "pinned": pinned_frames(summary["evidence"], probe_only),
+                    "closed": closed_frames(summary["evidence"], rival_frames(run), probe_only),
                     "other": other_cause(summary.get("suspect", {}).get("causes", []))})
     return out
 
@@ -55,8 +58,14 @@ def from_result(source: Path, row: dict) -> dict:
     b, s = row["benchmark"], row["benchmark"]["suspect"]
     return {"source": str(source), "run": f"{b['object']}_{b['seed']}_{b['method']}", "method": b["method"],
             "ratio": row["final"]["insertion_error_mm"] / row["clearance_mm"],
-            "pinned": [False] * s["unpinned_frames"] + [True] * (s["evidence_frames"] - s["unpinned_frames"]),
+            "closed": [False] * s["unpinned_frames"] + [True] * (s["evidence_frames"] - s["unpinned_frames"]),
             "other": other_cause(s["causes"])}
+
+
+def rival_frames(run: Path) -> set[int]:
+    """The frames of run folder ``run`` whose track.csv flags hold ``rival_mode``."""
+    with open(run / "track.csv", newline="") as f:
+        return {int(row["frame"]) for row in csv.DictReader(f) if "rival_mode" in row["flags"].split("|")}
 
 
 def other_cause(causes: list[str]) -> bool:
@@ -91,8 +100,9 @@ def main() -> None:
                     counts[m]["runs"] += 1
                     if kind:
                         counts[m][kind] += 1
+                        closed = r.get("closed", r.get("pinned"))
                         for t in thresholds:
-                            counts[m][(kind, t)] += r.get("other", False) or suspect_warning(r["pinned"], t) is not None
+                            counts[m][(kind, t)] += r.get("other", False) or suspect_warning(closed, t) is not None
             for m, c in sorted(counts.items(), key=lambda kv: (kv[0] == "all", kv[0])):
                 parts = [f"threshold {t:g}: far off flagged {c[('far', t)]} of {c['far']}, "
                          f"within the clearance flagged {c[('within', t)]} of {c['within']}" for t in thresholds]

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import Config
-from ..filter.health import RivalMode, SensorConsistency, is_suspect, jump_warning, step_warnings, warning
+from ..filter.health import RivalMode, SensorConsistency, is_suspect, jump_warning, left_open, step_warnings, warning
 from ..filter.particles import ParticleSet
 from ..filter.pf import ParticleFilter
 from ..filter.result import StepResult
@@ -287,11 +287,6 @@ class Estimator:
                 warnings.append(jump_warning(frame.index, jump, self.pf.jump_sigmas, cause))
                 flags.append("estimate_jump")
 
-        if evidence is not None:
-            self.unpinned = (self.unpinned[0] + (not evidence.pinned), self.unpinned[1] + 1)
-        suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
-        if suspect:
-            flags.append("suspect_estimate")
         # where the mode check searched, it alone judges rivals (search.rival_beside_mode_check)
         judged = mode_ruled_out is not None and not self.cfg.search.rival_beside_mode_check
         if due and evidence is not None and not judged:
@@ -306,6 +301,11 @@ class Estimator:
             self.rival = switch.rival
         elif judged and mode_ruled_out:
             self.rival = None
+        if evidence is not None:
+            self.unpinned = (self.unpinned[0] + left_open(evidence.pinned, self.rival), self.unpinned[1] + 1)
+        suspect = is_suspect(*self.unpinned, self.cfg.output.suspect_unpinned_fraction)
+        if suspect:
+            flags.append("suspect_estimate")
         left_out = None
         if taped is not None and has_evidence:
             t_loo = time.perf_counter()

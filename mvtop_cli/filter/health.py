@@ -317,24 +317,31 @@ class RivalMode:
         return f"{-self.nats_below:.1f} nats better than it"
 
 
+def left_open(pinned: bool, rival: RivalMode | None) -> bool:
+    """Whether a frame with evidence left the pose open: some axis (``EvidenceReport.pinned``
+    False) or another mode (a rival the checks found and none has ruled out yet). The
+    ``suspect_estimate`` share counts such frames."""
+    return not pinned or rival is not None
+
+
 def is_suspect(open_frames: int, frames: int, max_unpinned_fraction: float | None) -> bool:
-    """Whether ``open_frames`` of ``frames`` frames with evidence, those whose likelihood leaves
-    some pose axis open (``EvidenceReport.pinned`` False), make up at least
-    ``max_unpinned_fraction`` of them (``output.suspect_unpinned_fraction``; None: never)."""
+    """Whether ``open_frames`` of ``frames`` frames with evidence, those that left the pose open
+    (``left_open``), make up at least ``max_unpinned_fraction`` of them
+    (``output.suspect_unpinned_fraction``; None: never)."""
     return max_unpinned_fraction is not None and frames > 0 and open_frames / frames >= max_unpinned_fraction
 
 
-def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
+def suspect_warning(closed: list[bool], max_unpinned_fraction: float | None,
                     rival: RivalMode | None = None) -> dict | None:
-    """The run's ``suspect_estimate`` record, or None: raised when the frames whose likelihood
-    leaves some pose axis open (``EvidenceReport.pinned`` False, one entry per frame with
-    evidence) make up at least ``max_unpinned_fraction`` of them (None: never raised). It sees
-    a wrong mode the cameras leave open (e.g. a part they see mostly behind the fingers), not one
-    every sensor explains: at 0.4 it flagged 61 % of the simulated runs that ended far off (above
-    5x the clearance) where it was chosen and 33 % on grasps it was not chosen on, at about 4 %
-    false alarms (README: The suspect_estimate warning)."""
-    open_frames = sum(not p for p in pinned)
-    if not is_suspect(open_frames, len(pinned), max_unpinned_fraction):
+    """The run's ``suspect_estimate`` record, or None: raised when the frames that left the pose
+    open (``closed`` False, one entry per frame with evidence: ``not left_open``) make up at least
+    ``max_unpinned_fraction`` of them (None: never raised), or when ``rival`` still stands at the
+    end. The share sees a wrong mode the cameras leave open (e.g. a part they see mostly behind
+    the fingers), and one a rival stood against for much of the run before a check, scoring on
+    masks the belief chose, ruled it out; not one every sensor explains (README: The
+    suspect_estimate warning)."""
+    open_frames = sum(not p for p in closed)
+    if not is_suspect(open_frames, len(closed), max_unpinned_fraction):
         if rival is None:
             return None
         return warning(
@@ -346,35 +353,36 @@ def suspect_warning(pinned: list[bool], max_unpinned_fraction: float | None,
             "measurement before relying on it",
             rival_frame=rival.frame, rival_translation_mm=rival.translation_mm, rival_rotation_deg=rival.rotation_deg,
         )
-    fraction = open_frames / len(pinned)
+    fraction = open_frames / len(closed)
     return warning(
         None, "suspect_estimate",
-        f"the evidence left some pose axis open in {open_frames} of {len(pinned)} frames ({100 * fraction:.0f} %, "
-        f"threshold {100 * max_unpinned_fraction:.0f} %): the estimate may be far off; from the frame this share was "
-        "reached its covariance is the grasp prior's spread about it (flag suspect_estimate); check it against another "
-        "measurement before relying on it",
-        unpinned_frames=open_frames, frames=len(pinned), unpinned_fraction=fraction,
+        f"the evidence left some pose axis or a rival mode open in {open_frames} of {len(closed)} frames "
+        f"({100 * fraction:.0f} %, threshold {100 * max_unpinned_fraction:.0f} %): the estimate may be far off; from "
+        "the frame this share was reached its covariance is the grasp prior's spread about it (flag "
+        "suspect_estimate); check it against another measurement before relying on it",
+        unpinned_frames=open_frames, frames=len(closed), unpinned_fraction=fraction,
     )
 
 
 SUSPECT_CAUSES = ("unpinned", "rival_mode", "sensors_disagree", "camera_extrinsics")
 
 
-def suspect_causes(pinned: list[bool], max_unpinned_fraction: float | None, rivals: list[RivalMode | None],
+def suspect_causes(closed: list[bool], max_unpinned_fraction: float | None, rivals: list[RivalMode | None],
                    camera_left_turned: bool) -> dict:
     """Why a run ends suspect: every reason for its ``suspect_estimate`` record that holds at
     its end, not only the one its sentence gives (summary.json ``suspect``, kept by the
     benchmark, so another ``output.suspect_unpinned_fraction`` can be judged from finished runs).
-    ``pinned`` one entry per frame with evidence (``EvidenceReport.pinned``); ``rivals`` the
-    rival mode and the first frame's sensor disagreement still standing (None: none);
-    ``camera_left_turned`` a camera whose extrinsics look off was used as recorded. ``causes``
-    is a subset of ``SUSPECT_CAUSES`` in that order; the record is raised when it is not empty."""
-    open_frames = sum(not p for p in pinned)
-    causes = ["unpinned"] if is_suspect(open_frames, len(pinned), max_unpinned_fraction) else []
+    ``closed`` one entry per frame with evidence (``not left_open``; cause ``unpinned``: the
+    share of open frames); ``rivals`` the rival mode and the first frame's sensor disagreement
+    still standing (None: none); ``camera_left_turned`` a camera whose extrinsics look off was
+    used as recorded. ``causes`` is a subset of ``SUSPECT_CAUSES`` in that order; the record is
+    raised when it is not empty."""
+    open_frames = sum(not p for p in closed)
+    causes = ["unpinned"] if is_suspect(open_frames, len(closed), max_unpinned_fraction) else []
     causes += [k for k in SUSPECT_CAUSES[1:3] if any(r is not None and r.kind == k for r in rivals)]
     if camera_left_turned:
         causes.append("camera_extrinsics")
-    return {"raised": bool(causes), "causes": causes, "unpinned_frames": open_frames, "evidence_frames": len(pinned),
+    return {"raised": bool(causes), "causes": causes, "unpinned_frames": open_frames, "evidence_frames": len(closed),
             "unpinned_threshold": max_unpinned_fraction}
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from ..config import Config, dump_config
 from ..estimator import FrameEstimate
 from ..estimator.evidence import finite_or_none
-from ..filter.health import count_warnings, sensor_report, suspect_causes, suspect_warning, warning_lines
+from ..filter.health import count_warnings, left_open, sensor_report, suspect_causes, suspect_warning, warning_lines
 from ..geometry import se3
 from ..io.atomic import atomic_output
 from ..io.mcap_writer import LogWriter
@@ -36,9 +36,9 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
             flags[fl] = flags.get(fl, 0) + 1
         warnings.extend(r.warnings)
         agreement.append((r.index, getattr(r, "sensor_iou", {})))
-    pinned = [r.evidence.pinned for r in results if r.evidence is not None]
+    closed = [not left_open(r.evidence.pinned, getattr(r, "rival", None)) for r in results if r.evidence is not None]
     rivals = [getattr(last, "rival", None), getattr(last, "disagreement", None)]
-    suspect = suspect_warning(pinned, cfg.output.suspect_unpinned_fraction, rivals[0] or rivals[1])
+    suspect = suspect_warning(closed, cfg.output.suspect_unpinned_fraction, rivals[0] or rivals[1])
     left_turned = [a for a in getattr(last, "extrinsics", {}).values() if a is not None and a.suspect]
     if suspect is None and left_turned:
         suspect = left_turned[0].suspect_warning()
@@ -67,7 +67,7 @@ def run_summary(results: list[FrameEstimate], cfg: Config, log_path: Path, elaps
         "flags": flags,
         "warnings": warnings,
         "warning_counts": count_warnings(warnings),
-        "suspect": suspect_causes(pinned, cfg.output.suspect_unpinned_fraction, rivals, bool(left_turned)),
+        "suspect": suspect_causes(closed, cfg.output.suspect_unpinned_fraction, rivals, bool(left_turned)),
         "sensors": sensor_report(agreement, warnings),
         "evidence": evidence_report(results),
         "extrinsics": extrinsics_report(last),
@@ -85,18 +85,20 @@ def evidence_report(results: list[FrameEstimate]) -> dict:
     """summary.json's ``evidence``: the final frame's diagnostic in full (per-sensor IoU at the
     estimate, the likelihood's width per axis, ``estimator/evidence.py``) and, per frame, the
     worst sensor IoU, the probe's widest translation [m] / rotation [deg] width (null: no evidence,
-    or a flat likelihood) and whether the evidence pinned every axis (``EvidenceReport.pinned``:
-    the probe's and the latest profile's widths, what the ``suspect_estimate`` warning counts); and
+    or a flat likelihood), whether the evidence pinned every axis (``EvidenceReport.pinned``: the
+    probe's and the latest profile's widths) and whether a rival mode stood (what the
+    ``suspect_estimate`` warning counts: ``filter.health.left_open``); and
     the first frame's leave-one-out gains per sensor [nats] (``search.disagreement_margin``; null:
     the check did not run)."""
     num = finite_or_none
     frames = [[r.index, num(r.evidence.min_iou), num(r.evidence.sigma_translation_m),
-               num(r.evidence.sigma_rotation_deg), r.evidence.pinned] for r in results if r.evidence is not None]
+               num(r.evidence.sigma_rotation_deg), r.evidence.pinned, getattr(r, "rival", None) is not None]
+              for r in results if r.evidence is not None]
     final = next((r.evidence.as_dict() for r in reversed(results) if r.evidence is not None), None)
     checked = next((r for r in results if getattr(r, "leave_one_out", None) is not None), None)
     left_out = None if checked is None else {"frame": checked.index, "others_gain_nats": checked.leave_one_out}
     return {"final": final, "per_frame": {"columns": ["frame", "min_iou", "sigma_translation_m", "sigma_rotation_deg",
-                                                      "pinned"],
+                                                      "pinned", "rival"],
                                           "rows": frames}, "leave_one_out": left_out}
 
 
@@ -110,6 +112,21 @@ def pinned_frames(evidence: dict, probe_only: bool = False) -> list[bool]:
         k = columns.index("pinned")
         return [bool(r[k]) for r in rows]
     return [r[2] is not None and r[3] is not None for r in rows]
+
+
+def closed_frames(evidence: dict, rival_frames: set[int] | None = None, probe_only: bool = False) -> list[bool]:
+    """Per frame with evidence, whether it left the pose closed (``not filter.health.left_open``):
+    every axis pinned (``pinned_frames``) and no rival mode standing, from the ``rival`` column,
+    or for folders written before it from ``rival_frames``, the frames track.csv flags
+    ``rival_mode``."""
+    per_frame = evidence["per_frame"]
+    columns, rows = per_frame["columns"], per_frame["rows"]
+    if "rival" in columns:
+        k = columns.index("rival")
+        rivals = [bool(r[k]) for r in rows]
+    else:
+        rivals = [r[0] in (rival_frames or set()) for r in rows]
+    return [p and not q for p, q in zip(pinned_frames(evidence, probe_only), rivals)]
 
 
 def extrinsics_report(last: FrameEstimate) -> dict:
