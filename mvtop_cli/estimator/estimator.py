@@ -90,7 +90,7 @@ class FrameEstimate:
     # how well the evidence pins the estimate (``evidence.EvidenceReport``); None when nothing was observed
     evidence: EvidenceReport | None = None
     # the state carried to the next frame (``Estimator.resume_after`` on resume): the sensor consistency
-    # watch, and the frames so far whose evidence left some pose axis open, of those with evidence
+    # watch, and the frames so far that left some pose axis or a rival mode open, of those with evidence
     consistency: dict = field(default_factory=dict)
     unpinned: tuple[int, int] = (0, 0)
     # the rival mode the checks found and none has ruled out yet (None: no rival, or no check yet;
@@ -368,7 +368,7 @@ class Estimator:
     def resume_after(self, last: FrameEstimate) -> None:
         """Continue after frame ``last`` with the state it carried over: the sensor consistency
         watch (``FrameEstimate.consistency``: a resumed run scales the same sensors down at the
-        same frames), the count of frames that left an axis open (``FrameEstimate.unpinned``),
+        same frames), the count of frames that left an axis or a rival open (``FrameEstimate.unpinned``),
         the rival no check has ruled out yet (``FrameEstimate.rival``), the first frame's
         disagreement (``FrameEstimate.disagreement``), the latest profile widths
         (``FrameEstimate.profile_sigma``), the extrinsics check's findings (``FrameEstimate.extrinsics``),
