@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up mvtop on a fresh Debian/Ubuntu machine with Python >= 3.10:
 #   1. system libraries for offscreen OpenGL over EGL (pyrender), installed with apt-get if missing;
-#   2. a virtual environment in .venv with mvtop, its test extras and the ray extra (--ray).
+#   2. a virtual environment in .venv with mvtop, its test extras and the ray extra (--ray), at the
+#      exact versions of constraints/pythonX.Y.txt where there is one for the venv's Python.
 # Safe to run again: it only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,6 +25,13 @@ if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv"
   python3 -m venv .venv
 fi
+lock="constraints/python$(.venv/bin/python -c 'import sys; print("%d.%d" % sys.version_info[:2])').txt"
+constraint=()
+if [ -f "$lock" ]; then
+  constraint=(-c "$lock")
+else
+  echo "setup: no $lock for this Python: installing the newest releases pyproject.toml allows"
+fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
-.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,ray]'
+.venv/bin/python -m pip install -q --disable-pip-version-check ${constraint[@]+"${constraint[@]}"} -e '.[test,ray]'
 echo "setup: ready (.venv/bin/mvtop)"
